@@ -1,0 +1,32 @@
+# fascicle_module(name [DEPS module...] [LIBS target...] [CXX17_SIMBODY])
+# Builds src/<name>/*.cpp into the static archive fascicle_<name>, public headers in
+# include/fascicle/<name>/. DEPS are other fascicle modules (lower layers only).
+set(FASCICLE_MODULES "" CACHE INTERNAL "")
+function(fascicle_module name)
+  cmake_parse_arguments(M "" "" "DEPS;LIBS" ${ARGN})
+  file(GLOB_RECURSE srcs CONFIGURE_DEPENDS ${CMAKE_SOURCE_DIR}/src/${name}/*.cpp)
+  add_library(fascicle_${name} STATIC ${srcs})
+  target_include_directories(fascicle_${name} PUBLIC ${CMAKE_SOURCE_DIR}/include)
+  target_compile_options(fascicle_${name} PRIVATE ${FASCICLE_WARNINGS})
+  set_target_properties(fascicle_${name} PROPERTIES POSITION_INDEPENDENT_CODE ON)
+  foreach(dep IN LISTS M_DEPS)
+    target_link_libraries(fascicle_${name} PUBLIC fascicle_${dep})
+  endforeach()
+  if(M_LIBS)
+    target_link_libraries(fascicle_${name} PUBLIC ${M_LIBS})
+  endif()
+  set(FASCICLE_MODULES ${FASCICLE_MODULES} fascicle_${name} CACHE INTERNAL "")
+endfunction()
+
+# fascicle_test(module) builds tests/<module>/*.cpp into test_<module>, linked to that module only.
+function(fascicle_test name)
+  file(GLOB_RECURSE srcs CONFIGURE_DEPENDS ${CMAKE_SOURCE_DIR}/tests/${name}/*.cpp)
+  if(NOT srcs)
+    return()
+  endif()
+  add_executable(test_${name} ${srcs})
+  target_link_libraries(test_${name} PRIVATE fascicle_${name} fascicle_testsupport GTest::gtest GTest::gtest_main)
+  target_compile_options(test_${name} PRIVATE ${FASCICLE_WARNINGS})
+  gtest_discover_tests(test_${name} DISCOVERY_TIMEOUT 60 PROPERTIES ENVIRONMENT
+                       "FASCICLE_DATA_DIR=${FASCICLE_DATA_DIR}")
+endfunction()

@@ -1,0 +1,33 @@
+// Parallel loops on TBB with a user-chosen thread count. Work is split by index and every index
+// writes only its own outputs, so results do not depend on scheduling: the same inputs and thread
+// count give identical results (and, for independent items, identical for any thread count).
+#pragma once
+
+#include <cstddef>
+#include <functional>
+#include <memory>
+
+namespace fascicle {
+
+// Limits TBB to n threads for the lifetime of the returned guard (n <= 0: all cores).
+class ThreadLimit {
+ public:
+  explicit ThreadLimit(int n);
+  ~ThreadLimit();
+  ThreadLimit(const ThreadLimit&) = delete;
+  ThreadLimit& operator=(const ThreadLimit&) = delete;
+  int threads() const { return threads_; }
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  int threads_;
+};
+
+// Calls body(i) for i in [0, n), in parallel. Exceptions thrown by body propagate (the first one).
+void parallel_for(std::size_t n, const std::function<void(std::size_t)>& body);
+
+// The number of threads TBB will use now.
+int max_threads();
+
+}  // namespace fascicle

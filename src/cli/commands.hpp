@@ -1,0 +1,16 @@
+// The CLI's subcommands. Each cmd_*.cpp adds its subcommands to the app; the chosen one stores
+// its work in `action`, which main() runs after logging and threads are set up.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+#include <functional>
+
+namespace fascicle::cli {
+
+struct Invocation {
+  std::function<void()> action;  // the work of the chosen subcommand; throws fascicle::Error
+};
+
+
+}  // namespace fascicle::cli

@@ -1,0 +1,50 @@
+// fascicle: the command-line tool over libfascicle. Exit codes are documented in docs/cli.md.
+#include "commands.hpp"
+
+#include "fascicle/core/error.hpp"
+#include "fascicle/core/log.hpp"
+#include "fascicle/core/parallel.hpp"
+
+#include <cstdio>
+#include <exception>
+#include <optional>
+
+int main(int argc, char** argv) {
+  using fascicle::ExitCode;
+  CLI::App app{"fascicle — anatomically based skeletal-muscle modelling.\n"
+               "Exit codes: 0 ok, 1 internal error, 2 usage, 3 bad input, 4 numerical failure."};
+  app.set_version_flag("--version", std::string("fascicle ") + FASCICLE_VERSION);
+  app.require_subcommand(1);
+  int verbose = 0;
+  bool quiet_flag = false;
+  int threads = 0;
+  app.add_flag("-v,--verbose", verbose, "More log output (-vv for trace)");
+  app.add_flag("-q,--quiet", quiet_flag, "Errors only; no progress bars");
+  app.add_option("--threads", threads, "Worker threads (default: all cores)")
+      ->check(CLI::NonNegativeNumber);
+
+  fascicle::cli::Invocation run;
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    const int code = app.exit(e);
+    return code == 0 ? 0 : static_cast<int>(ExitCode::usage);
+  }
+
+  try {
+    fascicle::init_logging(quiet_flag ? -1 : verbose);
+    const fascicle::ThreadLimit limit(threads);
+    if (run.action) run.action();
+    return static_cast<int>(ExitCode::ok);
+  } catch (const fascicle::Error& e) {
+    spdlog::error("{}", e.what());
+    return static_cast<int>(e.exit_code());
+  } catch (const std::bad_alloc&) {
+    spdlog::error("out of memory");
+    return static_cast<int>(ExitCode::internal);
+  } catch (const std::exception& e) {
+    spdlog::error("internal error: {} (please report this with the command line)", e.what());
+    return static_cast<int>(ExitCode::internal);
+  }
+}

@@ -1,0 +1,29 @@
+#include "fascicle/core/parallel.hpp"
+
+#include <tbb/global_control.h>
+#include <tbb/info.h>
+#include <tbb/parallel_for.h>
+
+namespace fascicle {
+
+struct ThreadLimit::Impl {
+  explicit Impl(int n) : control(tbb::global_control::max_allowed_parallelism, n) {}
+  tbb::global_control control;
+};
+
+ThreadLimit::ThreadLimit(int n)
+    : impl_(std::make_unique<Impl>(n > 0 ? n : tbb::info::default_concurrency())),
+      threads_(n > 0 ? n : tbb::info::default_concurrency()) {}
+
+ThreadLimit::~ThreadLimit() = default;
+
+void parallel_for(std::size_t n, const std::function<void(std::size_t)>& body) {
+  tbb::parallel_for(std::size_t{0}, n, [&](std::size_t i) { body(i); });
+}
+
+int max_threads() {
+  return static_cast<int>(
+      tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+}
+
+}  // namespace fascicle

@@ -1,0 +1,43 @@
+#include "test_support.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+#include <stdexcept>
+#include <unistd.h>
+
+namespace fascicle::test {
+
+std::filesystem::path data_dir() {
+  if (const char* env = std::getenv("FASCICLE_DATA_DIR"); env != nullptr && *env != '\0') {
+    return std::filesystem::path(env);
+  }
+  return std::filesystem::path(FASCICLE_DEFAULT_DATA_DIR);
+}
+
+std::filesystem::path data_path(const std::string& relative) {
+  const std::filesystem::path p = data_dir() / relative;
+  if (!std::filesystem::exists(p)) {
+    // GoogleTest's fatal assertions only work in void functions, so throw: gtest reports the
+    // message as a failure of the running test.
+    throw std::runtime_error("real data missing: " + p.string() +
+                             " (tests read ../shared/data beside the repository; set "
+                             "FASCICLE_DATA_DIR to its location)");
+  }
+  return p;
+}
+
+std::filesystem::path scratch_dir(const std::string& name) {
+  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  std::string leaf = name;
+  if (info != nullptr) {
+    leaf = std::string(info->test_suite_name()) + "." + info->name() + "." + name;
+  }
+  const std::filesystem::path p = std::filesystem::temp_directory_path() /
+                                  ("fascicle-test-" + std::to_string(::getpid())) / leaf;
+  std::filesystem::remove_all(p);
+  std::filesystem::create_directories(p);
+  return p;
+}
+
+}  // namespace fascicle::test

@@ -1,0 +1,19 @@
+// Helpers shared by the test programs: where the real data lives, and scratch folders.
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+namespace fascicle::test {
+
+// The shared real-data folder (../shared/data beside the repository, or $FASCICLE_DATA_DIR).
+std::filesystem::path data_dir();
+
+// A file or folder below data_dir(). The calling test fails (fatally, with the path and what to do)
+// when it is missing: tests that need real data never pass silently without it.
+std::filesystem::path data_path(const std::string& relative);
+
+// A fresh, empty folder under the system temporary directory, unique to this test.
+std::filesystem::path scratch_dir(const std::string& name);
+
+}  // namespace fascicle::test
