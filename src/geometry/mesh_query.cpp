@@ -1,0 +1,569 @@
+#include "fascicle/geometry/mesh_query.hpp"
+
+#include "fascicle/core/error.hpp"
+#include "fascicle/core/parallel.hpp"
+#include "fascicle/geometry/winding_number.hpp"
+
+#include <embree3/rtcore.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <string>
+
+namespace fascicle {
+
+// ---------------------------------------------------------------------------------------------
+// Exact kernels
+// ---------------------------------------------------------------------------------------------
+namespace {
+
+// Closest point of segment [a, b] to p, as the parameter s in [0, 1].
+double closest_on_segment(const Vec3& p, const Vec3& a, const Vec3& b) {
+  const Vec3 ab = b - a;
+  const double len2 = ab.squaredNorm();
+  if (!(len2 > 0.0)) return 0.0;
+  return std::clamp((p - a).dot(ab) / len2, 0.0, 1.0);
+}
+
+// A zero-area triangle: the closest point lies on one of its edges.
+TrianglePoint closest_on_degenerate(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
+  const std::array<const Vec3*, 3> v{&a, &b, &c};
+  TrianglePoint best;
+  double best_d2 = std::numeric_limits<double>::infinity();
+  for (int k = 0; k < 3; ++k) {
+    const int k1 = (k + 1) % 3;
+    const double s = closest_on_segment(p, *v[k], *v[k1]);
+    const Vec3 q = (1.0 - s) * *v[k] + s * *v[k1];
+    const double d2 = (p - q).squaredNorm();
+    if (d2 < best_d2) {
+      best_d2 = d2;
+      best.point = q;
+      best.barycentric.setZero();
+      best.barycentric[k] = 1.0 - s;
+      best.barycentric[k1] = s;
+    }
+  }
+  return best;
+}
+
+}  // namespace
+
+TrianglePoint closest_point_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b,
+                                        const Vec3& c) {
+  // Ericson 2005, section 5.1.5: classify p against the Voronoi regions of the vertices, edges and
+  // face using dot products of the edge vectors, from cheapest to most expensive test.
+  const Vec3 ab = b - a, ac = c - a, ap = p - a;
+  const double d1 = ab.dot(ap), d2 = ac.dot(ap);
+  if (d1 <= 0.0 && d2 <= 0.0) return {a, Vec3(1, 0, 0)};
+  const Vec3 bp = p - b;
+  const double d3 = ab.dot(bp), d4 = ac.dot(bp);
+  if (d3 >= 0.0 && d4 <= d3) return {b, Vec3(0, 1, 0)};
+  const Vec3 cp = p - c;
+  const double d5 = ab.dot(cp), d6 = ac.dot(cp);
+  if (d6 >= 0.0 && d5 <= d6) return {c, Vec3(0, 0, 1)};
+  // va + vb + vc = |ab x ac|^2 (Lagrange's identity): zero for a degenerate triangle.
+  const double vc = d1 * d4 - d3 * d2;
+  const double vb = d5 * d2 - d1 * d6;
+  const double va = d3 * d6 - d5 * d4;
+  const double area2 = ab.cross(ac).squaredNorm();
+  if (!(area2 > 0.0)) return closest_on_degenerate(p, a, b, c);
+  if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) {  // edge ab
+    const double v = d1 / (d1 - d3);
+    return {a + v * ab, Vec3(1.0 - v, v, 0.0)};
+  }
+  if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) {  // edge ac
+    const double w = d2 / (d2 - d6);
+    return {a + w * ac, Vec3(1.0 - w, 0.0, w)};
+  }
+  if (va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0) {  // edge bc
+    const double w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+    return {b + w * (c - b), Vec3(0.0, 1.0 - w, w)};
+  }
+  // Inside the face: barycentrics from the signed sub-areas.
+  const double inv = 1.0 / (va + vb + vc);
+  const double v = vb * inv, w = vc * inv;
+  return {a + v * ab + w * ac, Vec3(1.0 - v - w, v, w)};
+}
+
+std::optional<RayHit> intersect_ray_triangle(const Vec3& origin, const Vec3& direction,
+                                             const Vec3& a, const Vec3& b, const Vec3& c,
+                                             double t_min, double t_max, bool* on_edge) {
+  // Woop, Benthin and Wald 2013: translate to the ray origin, permute so the dominant direction
+  // axis is z, shear the ray onto +z, and test the 2D edge functions at the origin. Shared edges
+  // give identical (negated) edge functions in both triangles, hence no gaps between them.
+  if (on_edge != nullptr) *on_edge = false;
+  int kz = 0;
+  direction.cwiseAbs().maxCoeff(&kz);
+  int kx = (kz + 1) % 3, ky = (kx + 1) % 3;
+  if (direction[kz] < 0.0) std::swap(kx, ky);  // keep the winding of the permuted frame
+  if (direction[kz] == 0.0) return std::nullopt;  // zero direction
+  const double sx = direction[kx] / direction[kz];
+  const double sy = direction[ky] / direction[kz];
+  const double sz = 1.0 / direction[kz];
+  const Vec3 A = a - origin, B = b - origin, C = c - origin;
+  const double ax = A[kx] - sx * A[kz], ay = A[ky] - sy * A[kz];
+  const double bx = B[kx] - sx * B[kz], by = B[ky] - sy * B[kz];
+  const double cx = C[kx] - sx * C[kz], cy = C[ky] - sy * C[kz];
+  const double u = cx * by - cy * bx;
+  const double v = ax * cy - ay * cx;
+  const double w = bx * ay - by * ax;
+  if ((u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0)) return std::nullopt;
+  const double det = u + v + w;
+  if (det == 0.0) {
+    if (on_edge != nullptr) *on_edge = true;  // ray in the triangle's plane, or a degenerate one
+    return std::nullopt;
+  }
+  const double t = (u * sz * A[kz] + v * sz * B[kz] + w * sz * C[kz]) / det;
+  if (!(t > t_min && t < t_max)) return std::nullopt;
+  RayHit hit;
+  hit.t = t;
+  hit.barycentric = Vec3(u, v, w) / det;
+  const Vec3 n = (b - a).cross(c - a);
+  hit.normal = n.normalized();
+  hit.front_facing = n.dot(direction) < 0.0;
+  if (on_edge != nullptr) *on_edge = (u == 0.0 || v == 0.0 || w == 0.0) || n.dot(direction) == 0.0;
+  return hit;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The Embree scene
+// ---------------------------------------------------------------------------------------------
+//
+// Embree stores boxes in float. The triangles are an Embree *user geometry* whose bounds callback
+// rounds each double box outward to float and pads it by `pad` (2^-18 times the scene scale), so
+// every box contains its exact double triangle. Culling decisions made in float (query point and
+// ray rounded to float) can therefore only visit too much, never too little, as long as the query
+// radius handed to Embree is padded by the float rounding of the query point (closest_with_hint).
+// All distances, hits and barycentrics are computed in double by the kernels above.
+struct MeshQuery::Bvh {
+  RTCDevice device = nullptr;
+  RTCScene scene = nullptr;
+  std::vector<double> corners;  // 9 doubles per triangle (a, b, c), packed for cache locality
+  double pad = 0.0;
+
+  Bvh() = default;
+  Bvh(const Bvh&) = delete;
+  Bvh& operator=(const Bvh&) = delete;
+  ~Bvh() {
+    if (scene != nullptr) rtcReleaseScene(scene);
+    if (device != nullptr) rtcReleaseDevice(device);
+  }
+  Vec3 corner(unsigned tri, int k) const {
+    const double* c = corners.data() + 9 * static_cast<std::size_t>(tri) + 3 * k;
+    return {c[0], c[1], c[2]};
+  }
+};
+
+namespace {
+
+float round_down(double x) {
+  float f = static_cast<float>(x);
+  if (static_cast<double>(f) > x) f = std::nextafter(f, -std::numeric_limits<float>::infinity());
+  return f;
+}
+
+float round_up(double x) {
+  float f = static_cast<float>(x);
+  if (static_cast<double>(f) < x) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+  return f;
+}
+
+// Padded, outward-rounded float box of one double triangle.
+void bounds_callback(const RTCBoundsFunctionArguments* args) {
+  const auto* bvh = static_cast<const MeshQuery::Bvh*>(args->geometryUserPtr);
+  const double* c = bvh->corners.data() + 9 * static_cast<std::size_t>(args->primID);
+  double lo[3], hi[3];
+  for (int k = 0; k < 3; ++k) {
+    lo[k] = std::min({c[k], c[3 + k], c[6 + k]}) - bvh->pad;
+    hi[k] = std::max({c[k], c[3 + k], c[6 + k]}) + bvh->pad;
+  }
+  RTCBounds* b = args->bounds_o;
+  b->lower_x = round_down(lo[0]);
+  b->lower_y = round_down(lo[1]);
+  b->lower_z = round_down(lo[2]);
+  b->upper_x = round_up(hi[0]);
+  b->upper_y = round_up(hi[1]);
+  b->upper_z = round_up(hi[2]);
+}
+
+// What a point query carries through Embree (its userPtr).
+struct PointQueryState {
+  const MeshQuery::Bvh* bvh;
+  Vec3 p;
+  double best_d2;
+  int best_triangle;
+  TrianglePoint best;
+  double radius_pad;  // absolute padding for the float rounding of the query point
+};
+
+// Embree's radius: the exact distance, rounded up and padded so float culling stays conservative.
+float padded_radius(double d, double radius_pad) {
+  if (!std::isfinite(d)) return std::numeric_limits<float>::infinity();
+  return round_up(d * (1.0 + 1e-6) + radius_pad);
+}
+
+bool point_query_callback(RTCPointQueryFunctionArguments* args) {
+  auto* q = static_cast<PointQueryState*>(args->userPtr);
+  const unsigned t = args->primID;
+  const TrianglePoint tp =
+      closest_point_on_triangle(q->p, q->bvh->corner(t, 0), q->bvh->corner(t, 1), q->bvh->corner(t, 2));
+  const double d2 = (q->p - tp.point).squaredNorm();
+  // Ties go to the lower triangle index, so the answer does not depend on traversal order.
+  if (d2 < q->best_d2 || (d2 == q->best_d2 && static_cast<int>(t) < q->best_triangle)) {
+    q->best_d2 = d2;
+    q->best_triangle = static_cast<int>(t);
+    q->best = tp;
+    args->query->radius = padded_radius(std::sqrt(d2), q->radius_pad);
+    return true;
+  }
+  return false;
+}
+
+// What a ray carries through Embree. The Embree context must be the first member: the intersect
+// callback receives a pointer to it and recovers the whole struct.
+enum class RayMode { first, all, crossings };
+struct RayState {
+  RTCIntersectContext context;
+  const MeshQuery::Bvh* bvh;
+  Vec3 origin, direction;
+  double t_min, t_max;
+  RayMode mode;
+  RayHit first;                  // RayMode::first
+  std::vector<RayHit>* all;      // RayMode::all
+  int crossings;                 // RayMode::crossings: signed sum
+  bool grazed;                   // RayMode::crossings: a hit on an edge/vertex or in-plane
+};
+
+void intersect_callback(const RTCIntersectFunctionNArguments* args) {
+  if (args->N != 1 || args->valid[0] == 0) return;
+  auto* r = reinterpret_cast<RayState*>(args->context);
+  const unsigned t = args->primID;
+  const double t_max = r->mode == RayMode::first ? std::min(r->t_max, r->first.t) : r->t_max;
+  bool on_edge = false;
+  std::optional<RayHit> hit =
+      intersect_ray_triangle(r->origin, r->direction, r->bvh->corner(t, 0), r->bvh->corner(t, 1),
+                             r->bvh->corner(t, 2), r->t_min, t_max, &on_edge);
+  if (r->mode == RayMode::crossings) {
+    if (on_edge) r->grazed = true;
+    // Leaving through an outward face (+1) minus entering (-1): the winding number at the origin.
+    if (hit) r->crossings += hit->front_facing ? -1 : 1;
+    return;
+  }
+  if (!hit) return;
+  hit->triangle = static_cast<int>(t);
+  if (r->mode == RayMode::all) {
+    r->all->push_back(*hit);
+    return;
+  }
+  r->first = *hit;
+  // Shrink Embree's far distance (rounded up, padded) so farther boxes are culled.
+  auto* rayhit = reinterpret_cast<RTCRayHit*>(args->rayhit);
+  const float tf = round_up(hit->t * (1.0 + 1e-6) + r->bvh->pad / r->direction.norm());
+  rayhit->ray.tfar = std::min(rayhit->ray.tfar, tf);
+  rayhit->hit.geomID = args->geomID;
+  rayhit->hit.primID = t;
+}
+
+void occluded_callback(const RTCOccludedFunctionNArguments* /*args*/) {}
+
+// Runs one ray through the scene with the given mode.
+void trace(const MeshQuery::Bvh& bvh, RayState& state) {
+  rtcInitIntersectContext(&state.context);
+  RTCRayHit rh;
+  rh.ray.org_x = static_cast<float>(state.origin.x());
+  rh.ray.org_y = static_cast<float>(state.origin.y());
+  rh.ray.org_z = static_cast<float>(state.origin.z());
+  rh.ray.dir_x = static_cast<float>(state.direction.x());
+  rh.ray.dir_y = static_cast<float>(state.direction.y());
+  rh.ray.dir_z = static_cast<float>(state.direction.z());
+  // The float ray deviates from the double one by rounding: widen its interval a little.
+  rh.ray.tnear = std::max(0.0f, round_down(state.t_min * (1.0 - 1e-6) - 1e-6));
+  rh.ray.tfar = std::isfinite(state.t_max) ? round_up(state.t_max * (1.0 + 1e-6) + 1e-6)
+                                           : std::numeric_limits<float>::infinity();
+  rh.ray.time = 0.0f;
+  rh.ray.mask = 0xFFFFFFFFu;
+  rh.ray.id = 0;
+  rh.ray.flags = 0;
+  rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+  rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
+  rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+  rtcIntersect1(bvh.scene, &state.context, &rh);
+}
+
+RayState make_ray(const MeshQuery::Bvh& bvh, const Vec3& origin, const Vec3& direction,
+                  double t_min, double t_max, RayMode mode) {
+  if (!origin.allFinite() || !direction.allFinite() || direction.squaredNorm() == 0.0) {
+    throw_bad_input("ray cast needs a finite origin and a finite, non-zero direction",
+                    {.suggestion = "check the ray's origin and direction"});
+  }
+  RayState s{};
+  s.bvh = &bvh;
+  s.origin = origin;
+  s.direction = direction;
+  s.t_min = t_min;
+  s.t_max = t_max;
+  s.mode = mode;
+  s.all = nullptr;
+  s.crossings = 0;
+  s.grazed = false;
+  return s;
+}
+
+// Five well-spread unit directions with no zero components (axis-aligned meshes have edges along
+// the axes), for the inside vote. Roughly the vertices of a trigonal bipyramid, tilted.
+const std::array<Vec3, 5> kVoteDirections = {
+    Vec3(0.2672612419124244, 0.5345224838248488, 0.8017837257372732),
+    Vec3(0.7071067811865476, -0.5773502691896258, -0.4082482904638630).normalized(),
+    Vec3(-0.8164965809277260, -0.3015113445777636, 0.4923659639173310).normalized(),
+    Vec3(-0.3244428422615251, 0.8111071056538127, -0.4866642633922876).normalized(),
+    Vec3(0.1740776559556978, -0.1523179489612356, -0.9728857850229200).normalized(),
+};
+
+// Morton code of a point quantised to 10 bits per axis inside [lo, hi].
+std::uint32_t morton_code(const Vec3& p, const Vec3& lo, const Vec3& inv_extent) {
+  auto spread = [](std::uint32_t x) {  // insert two zero bits between the 10 low bits
+    x &= 0x3FFu;
+    x = (x | (x << 16)) & 0x030000FFu;
+    x = (x | (x << 8)) & 0x0300F00Fu;
+    x = (x | (x << 4)) & 0x030C30C3u;
+    x = (x | (x << 2)) & 0x09249249u;
+    return x;
+  };
+  std::uint32_t code = 0;
+  for (int k = 0; k < 3; ++k) {
+    const double u = std::clamp((p[k] - lo[k]) * inv_extent[k], 0.0, 1.0);
+    code |= spread(static_cast<std::uint32_t>(u * 1023.0)) << k;
+  }
+  return code;
+}
+
+constexpr std::size_t kBlock = 256;  // points per coherent block in the batched queries
+
+// Points in Morton order, so that consecutive queries are near each other.
+std::vector<Eigen::Index> spatial_order(const Points3& P) {
+  std::vector<Eigen::Index> order(static_cast<std::size_t>(P.rows()));
+  if (P.rows() == 0) return order;
+  const Vec3 lo = P.colwise().minCoeff().transpose();
+  const Vec3 hi = P.colwise().maxCoeff().transpose();
+  Vec3 inv;
+  for (int k = 0; k < 3; ++k) inv[k] = hi[k] > lo[k] ? 1.0 / (hi[k] - lo[k]) : 0.0;
+  std::vector<std::pair<std::uint32_t, Eigen::Index>> keyed(order.size());
+  for (Eigen::Index i = 0; i < P.rows(); ++i) {
+    const Vec3 p = P.row(i).transpose();
+    keyed[static_cast<std::size_t>(i)] = {p.allFinite() ? morton_code(p, lo, inv) : 0u, i};
+  }
+  std::sort(keyed.begin(), keyed.end());
+  for (std::size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
+  return order;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// MeshQuery
+// ---------------------------------------------------------------------------------------------
+
+MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<Bvh>()) {
+  const Eigen::Index nv = mesh_.V.rows(), nf = mesh_.F.rows();
+  if (nf == 0 || nv == 0) {
+    throw_bad_input("mesh query needs a mesh with at least one triangle",
+                    {.suggestion = "check that the mesh file holds triangles"});
+  }
+  if (!mesh_.V.allFinite()) {
+    throw_bad_input("mesh has non-finite (NaN or Inf) vertex coordinates",
+                    {.suggestion = "repair the mesh (fascicle mesh repair) before querying it"});
+  }
+  if (mesh_.F.minCoeff() < 0 || mesh_.F.maxCoeff() >= nv) {
+    throw_bad_input("mesh has triangle vertex indices out of range [0, " + std::to_string(nv) + ")",
+                    {.suggestion = "repair the mesh (fascicle mesh repair) before querying it"});
+  }
+  Bvh& bvh = *bvh_;
+  bvh.corners.resize(9 * static_cast<std::size_t>(nf));
+  for (Eigen::Index f = 0; f < nf; ++f) {
+    for (int k = 0; k < 3; ++k) {
+      for (int j = 0; j < 3; ++j) bvh.corners[9 * f + 3 * k + j] = mesh_.V(mesh_.F(f, k), j);
+    }
+  }
+  const Vec3 lo = mesh_.V.colwise().minCoeff().transpose();
+  const Vec3 hi = mesh_.V.colwise().maxCoeff().transpose();
+  const double scale = std::max(lo.cwiseAbs().maxCoeff(), hi.cwiseAbs().maxCoeff()) + (hi - lo).norm();
+  bvh.pad = std::ldexp(std::max(scale, std::numeric_limits<double>::min()), -18);
+
+  bvh.device = rtcNewDevice(nullptr);
+  if (bvh.device == nullptr) throw_internal("Embree: cannot create a device");
+  bvh.scene = rtcNewScene(bvh.device);
+  rtcSetSceneFlags(bvh.scene, RTC_SCENE_FLAG_ROBUST);
+  rtcSetSceneBuildQuality(bvh.scene, RTC_BUILD_QUALITY_HIGH);
+  RTCGeometry geom = rtcNewGeometry(bvh.device, RTC_GEOMETRY_TYPE_USER);
+  rtcSetGeometryUserPrimitiveCount(geom, static_cast<unsigned>(nf));
+  rtcSetGeometryUserData(geom, &bvh);
+  rtcSetGeometryBoundsFunction(geom, bounds_callback, nullptr);
+  rtcSetGeometryIntersectFunction(geom, intersect_callback);
+  rtcSetGeometryOccludedFunction(geom, occluded_callback);
+  rtcCommitGeometry(geom);
+  rtcAttachGeometry(bvh.scene, geom);
+  rtcReleaseGeometry(geom);
+  rtcCommitScene(bvh.scene);
+  if (const RTCError err = rtcGetDeviceError(bvh.device); err != RTC_ERROR_NONE) {
+    throw_internal("Embree failed to build the BVH (error code " +
+                   std::to_string(static_cast<int>(err)) + ")");
+  }
+}
+
+MeshQuery::~MeshQuery() = default;
+MeshQuery::MeshQuery(MeshQuery&&) noexcept = default;
+MeshQuery& MeshQuery::operator=(MeshQuery&&) noexcept = default;
+
+ClosestPoint MeshQuery::closest_with_hint(const Vec3& p, int hint_triangle,
+                                          double max_distance) const {
+  PointQueryState q;
+  q.bvh = bvh_.get();
+  q.p = p;
+  q.best_d2 = max_distance * max_distance;
+  q.best_triangle = std::numeric_limits<int>::max();
+  // The float query point is off by half an ulp per axis; cover it (and float arithmetic in the
+  // box distance) with a few ulps of its largest coordinate.
+  q.radius_pad = bvh_->pad + std::ldexp(p.cwiseAbs().maxCoeff(), -20);
+  if (hint_triangle >= 0) {
+    const auto t = static_cast<unsigned>(hint_triangle);
+    const TrianglePoint tp =
+        closest_point_on_triangle(p, bvh_->corner(t, 0), bvh_->corner(t, 1), bvh_->corner(t, 2));
+    const double d2 = (p - tp.point).squaredNorm();
+    if (d2 <= q.best_d2) {
+      q.best_d2 = d2;
+      q.best_triangle = hint_triangle;
+      q.best = tp;
+    }
+  }
+  RTCPointQuery query;
+  query.x = static_cast<float>(p.x());
+  query.y = static_cast<float>(p.y());
+  query.z = static_cast<float>(p.z());
+  query.time = 0.0f;
+  query.radius = padded_radius(std::sqrt(q.best_d2), q.radius_pad);
+  RTCPointQueryContext context;
+  rtcInitPointQueryContext(&context);
+  rtcPointQuery(bvh_->scene, &query, &context, point_query_callback, &q);
+
+  ClosestPoint out;
+  if (q.best_triangle == std::numeric_limits<int>::max()) return out;
+  out.point = q.best.point;
+  out.triangle = q.best_triangle;
+  out.barycentric = q.best.barycentric;
+  out.distance = std::sqrt(q.best_d2);
+  return out;
+}
+
+ClosestPoint MeshQuery::calc_closest_point(const Vec3& p, double max_distance) const {
+  if (!p.allFinite()) {
+    throw_bad_input("closest-point query at a non-finite point",
+                    {.suggestion = "check the query points for NaN or Inf"});
+  }
+  return closest_with_hint(p, -1, max_distance);
+}
+
+std::optional<int> MeshQuery::calc_crossing_number(const Vec3& p, const Vec3& direction) const {
+  RayState r = make_ray(*bvh_, p, direction, 0.0, std::numeric_limits<double>::infinity(),
+                        RayMode::crossings);
+  trace(*bvh_, r);
+  if (r.grazed) return std::nullopt;
+  return r.crossings;
+}
+
+bool MeshQuery::calc_is_inside(const Vec3& p) const {
+  if (!p.allFinite()) {
+    throw_bad_input("inside test at a non-finite point",
+                    {.suggestion = "check the query points for NaN or Inf"});
+  }
+  // Majority of 5: stop as soon as one side has 3 votes.
+  int inside = 0, outside = 0;
+  for (const Vec3& d : kVoteDirections) {
+    const std::optional<int> w = calc_crossing_number(p, d);
+    if (!w) continue;  // grazing ray: abstain
+    (*w > 0 ? inside : outside) += 1;
+    if (inside >= 3) return true;
+    if (outside >= 3) return false;
+  }
+  return compute_winding_number(mesh_, p) > 0.5;
+}
+
+double MeshQuery::calc_signed_distance(const Vec3& p) const {
+  const double d = calc_closest_point(p).distance;
+  return calc_is_inside(p) ? -d : d;
+}
+
+std::optional<RayHit> MeshQuery::cast_ray(const Vec3& origin, const Vec3& direction, double t_min,
+                                          double t_max) const {
+  RayState r = make_ray(*bvh_, origin, direction, t_min, t_max, RayMode::first);
+  trace(*bvh_, r);
+  if (r.first.triangle < 0) return std::nullopt;
+  return r.first;
+}
+
+std::vector<RayHit> MeshQuery::cast_ray_all(const Vec3& origin, const Vec3& direction,
+                                            double t_min, double t_max) const {
+  std::vector<RayHit> hits;
+  RayState r = make_ray(*bvh_, origin, direction, t_min, t_max, RayMode::all);
+  r.all = &hits;
+  trace(*bvh_, r);
+  std::sort(hits.begin(), hits.end(), [](const RayHit& a, const RayHit& b) {
+    return a.t != b.t ? a.t < b.t : a.triangle < b.triangle;
+  });
+  return hits;
+}
+
+std::vector<ClosestPoint> MeshQuery::calc_closest_points(const Points3& P) const {
+  if (!P.allFinite()) {
+    throw_bad_input("closest-point query at non-finite points",
+                    {.suggestion = "check the query points for NaN or Inf"});
+  }
+  std::vector<ClosestPoint> out(static_cast<std::size_t>(P.rows()));
+  const std::vector<Eigen::Index> order = spatial_order(P);
+  const std::size_t blocks = (order.size() + kBlock - 1) / kBlock;
+  // Each block starts without a hint, so the result does not depend on how blocks are scheduled.
+  parallel_for(blocks, [&](std::size_t b) {
+    int hint = -1;
+    const std::size_t end = std::min(order.size(), (b + 1) * kBlock);
+    for (std::size_t k = b * kBlock; k < end; ++k) {
+      const Eigen::Index i = order[k];
+      ClosestPoint& c = out[static_cast<std::size_t>(i)];
+      c = closest_with_hint(P.row(i).transpose(), hint, std::numeric_limits<double>::infinity());
+      hint = c.triangle;
+    }
+  });
+  return out;
+}
+
+VecX MeshQuery::calc_distances(const Points3& P) const {
+  const std::vector<ClosestPoint> c = calc_closest_points(P);
+  VecX d(P.rows());
+  for (Eigen::Index i = 0; i < P.rows(); ++i) d[i] = c[static_cast<std::size_t>(i)].distance;
+  return d;
+}
+
+InsideFlags MeshQuery::calc_is_inside(const Points3& P) const {
+  InsideFlags inside(P.rows());
+  const std::size_t n = static_cast<std::size_t>(P.rows());
+  const std::size_t blocks = (n + kBlock - 1) / kBlock;
+  parallel_for(blocks, [&](std::size_t b) {
+    const std::size_t end = std::min(n, (b + 1) * kBlock);
+    for (std::size_t k = b * kBlock; k < end; ++k) {
+      const auto i = static_cast<Eigen::Index>(k);
+      inside[i] = calc_is_inside(Vec3(P.row(i).transpose()));
+    }
+  });
+  return inside;
+}
+
+VecX MeshQuery::calc_signed_distances(const Points3& P) const {
+  VecX d = calc_distances(P);
+  const InsideFlags inside = calc_is_inside(P);
+  for (Eigen::Index i = 0; i < P.rows(); ++i) {
+    if (inside[i]) d[i] = -d[i];
+  }
+  return d;
+}
+
+}  // namespace fascicle

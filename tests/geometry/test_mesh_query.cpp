@@ -1,0 +1,392 @@
+// MeshQuery against exhaustive search: closest points, inside tests, ray casts; the exact kernels
+// against independent checks.
+#include "fascicle/core/error.hpp"
+#include "fascicle/core/parallel.hpp"
+#include "fascicle/geometry/mesh_query.hpp"
+#include "fascicle/geometry/primitives.hpp"
+#include "fascicle/geometry/winding_number.hpp"
+
+#include "test_support.hpp"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cstdint>
+#include <cstring>
+#include <fstream>
+#include <numbers>
+#include <random>
+
+namespace fascicle {
+namespace {
+
+Vec3 vertex(const TriMesh& m, Eigen::Index f, int k) { return m.V.row(m.F(f, k)).transpose(); }
+
+// Exhaustive closest point.
+ClosestPoint brute_closest(const TriMesh& m, const Vec3& p) {
+  ClosestPoint best;
+  for (Eigen::Index f = 0; f < m.F.rows(); ++f) {
+    const TrianglePoint tp = closest_point_on_triangle(p, vertex(m, f, 0), vertex(m, f, 1), vertex(m, f, 2));
+    const double d = (p - tp.point).norm();
+    if (d < best.distance) {
+      best.distance = d;
+      best.point = tp.point;
+      best.triangle = static_cast<int>(f);
+      best.barycentric = tp.barycentric;
+    }
+  }
+  return best;
+}
+
+// Exhaustive ray hits (t > 0), sorted by t.
+std::vector<RayHit> brute_hits(const TriMesh& m, const Vec3& o, const Vec3& d) {
+  std::vector<RayHit> hits;
+  for (Eigen::Index f = 0; f < m.F.rows(); ++f) {
+    if (auto h = intersect_ray_triangle(o, d, vertex(m, f, 0), vertex(m, f, 1), vertex(m, f, 2))) {
+      h->triangle = static_cast<int>(f);
+      hits.push_back(*h);
+    }
+  }
+  std::sort(hits.begin(), hits.end(), [](const RayHit& a, const RayHit& b) {
+    return a.t != b.t ? a.t < b.t : a.triangle < b.triangle;
+  });
+  return hits;
+}
+
+// Random points: uniform in the bounding box enlarged by 20%, plus points near the surface (random
+// surface points moved along the face normal by +-1e-3 and +-1e-7 of the box size).
+Points3 sample_points(const TriMesh& m, int n_box, int n_near, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const Vec3 lo = m.V.colwise().minCoeff().transpose(), hi = m.V.colwise().maxCoeff().transpose();
+  const Vec3 c = 0.5 * (lo + hi), h = 0.6 * (hi - lo);
+  const double size = (hi - lo).norm();
+  Points3 P(n_box + n_near, 3);
+  for (int i = 0; i < n_box; ++i) {
+    for (int k = 0; k < 3; ++k) P(i, k) = c[k] + (2.0 * u(rng) - 1.0) * h[k];
+  }
+  std::uniform_int_distribution<Eigen::Index> pick(0, m.F.rows() - 1);
+  const double offsets[] = {1e-3, -1e-3, 1e-7, -1e-7};
+  for (int i = 0; i < n_near; ++i) {
+    const Eigen::Index f = pick(rng);
+    double a = u(rng), b = u(rng);
+    if (a + b > 1.0) { a = 1.0 - a; b = 1.0 - b; }
+    const Vec3 A = vertex(m, f, 0), B = vertex(m, f, 1), C = vertex(m, f, 2);
+    const Vec3 n = (B - A).cross(C - A).normalized();
+    P.row(n_box + i) = (A + a * (B - A) + b * (C - A) + offsets[i % 4] * size * n).transpose();
+  }
+  return P;
+}
+
+// The same checks on any mesh: closest point and inside against exhaustive search.
+void check_against_brute_force(const TriMesh& mesh, int n_box, int n_near, std::uint64_t seed) {
+  const MeshQuery query(mesh);
+  const Points3 P = sample_points(mesh, n_box, n_near, seed);
+  const std::vector<ClosestPoint> batch = query.calc_closest_points(P);
+  const InsideFlags inside = query.calc_is_inside(P);
+  const VecX w = compute_winding_numbers(mesh, P);
+  int checked_inside = 0;
+  for (Eigen::Index i = 0; i < P.rows(); ++i) {
+    const Vec3 p = P.row(i).transpose();
+    const ClosestPoint bf = brute_closest(mesh, p);
+    const ClosestPoint one = query.calc_closest_point(p);
+    const ClosestPoint& many = batch[static_cast<std::size_t>(i)];
+    ASSERT_NEAR(one.distance, bf.distance, 1e-12 * bf.distance) << "point " << i;
+    ASSERT_NEAR(many.distance, bf.distance, 1e-12 * bf.distance) << "point " << i;
+    // The reported point is on the reported triangle, at the reported barycentrics and distance.
+    const Vec3 q = one.barycentric[0] * vertex(mesh, one.triangle, 0) +
+                   one.barycentric[1] * vertex(mesh, one.triangle, 1) +
+                   one.barycentric[2] * vertex(mesh, one.triangle, 2);
+    ASSERT_LT((q - one.point).norm(), 1e-12 * (1.0 + one.point.norm()));
+    ASSERT_NEAR((p - one.point).norm(), one.distance, 1e-15 + 1e-14 * one.distance);
+    ASSERT_NEAR(one.barycentric.sum(), 1.0, 1e-14);
+    ASSERT_GE(one.barycentric.minCoeff(), -1e-15);
+    // Inside agrees with the exact winding number away from the surface itself.
+    if (bf.distance > 1e-9) {
+      ASSERT_EQ(inside[i], w[i] > 0.5) << "point " << i << " w=" << w[i];
+      ASSERT_EQ(query.calc_is_inside(p), w[i] > 0.5);
+      const double sd = query.calc_signed_distance(p);
+      ASSERT_EQ(sd < 0.0, w[i] > 0.5);
+      ASSERT_NEAR(std::abs(sd), bf.distance, 1e-12 * bf.distance);
+      ++checked_inside;
+    }
+  }
+  EXPECT_GT(checked_inside, n_box);
+}
+
+TEST(ClosestPointOnTriangle, MatchesDenseSampling) {
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const int grid = 200;
+  for (int trial = 0; trial < 200; ++trial) {
+    const Vec3 a(g(rng), g(rng), g(rng)), b(g(rng), g(rng), g(rng)), c(g(rng), g(rng), g(rng));
+    const Vec3 p = 1.5 * Vec3(g(rng), g(rng), g(rng));
+    const TrianglePoint tp = closest_point_on_triangle(p, a, b, c);
+    const double d = (p - tp.point).norm();
+    double d_grid = std::numeric_limits<double>::infinity();
+    for (int i = 0; i <= grid; ++i) {
+      for (int j = 0; i + j <= grid; ++j) {
+        const double s = double(i) / grid, t = double(j) / grid;
+        d_grid = std::min(d_grid, (p - (a + s * (b - a) + t * (c - a))).norm());
+      }
+    }
+    const double h = std::max({(b - a).norm(), (c - a).norm(), (c - b).norm()}) / grid;
+    ASSERT_LE(d, d_grid + 1e-14) << "trial " << trial;  // never worse than any sample
+    ASSERT_GE(d, d_grid - h) << "trial " << trial;      // and within the grid spacing of it
+    ASSERT_LT((tp.barycentric[0] * a + tp.barycentric[1] * b + tp.barycentric[2] * c - tp.point).norm(), 1e-13);
+  }
+}
+
+TEST(ClosestPointOnTriangle, AnalyticRegions) {
+  const Vec3 a(0, 0, 0), b(2, 0, 0), c(0, 2, 0);
+  // Above the face: the foot of the perpendicular.
+  TrianglePoint tp = closest_point_on_triangle(Vec3(0.5, 0.25, 3.0), a, b, c);
+  EXPECT_NEAR((tp.point - Vec3(0.5, 0.25, 0)).norm(), 0.0, 1e-15);
+  EXPECT_NEAR((tp.barycentric - Vec3(0.625, 0.25, 0.125)).norm(), 0.0, 1e-15);
+  // Beyond the hypotenuse: its midpoint.
+  tp = closest_point_on_triangle(Vec3(2, 2, -1), a, b, c);
+  EXPECT_NEAR((tp.point - Vec3(1, 1, 0)).norm(), 0.0, 1e-15);
+  EXPECT_NEAR((tp.barycentric - Vec3(0, 0.5, 0.5)).norm(), 0.0, 1e-15);
+  // Behind vertex a.
+  tp = closest_point_on_triangle(Vec3(-1, -3, 0.5), a, b, c);
+  EXPECT_EQ(tp.point, a);
+  // A degenerate (collinear) triangle behaves like its longest edge.
+  tp = closest_point_on_triangle(Vec3(1, 1, 0), a, b, Vec3(1, 0, 0));
+  EXPECT_NEAR((tp.point - Vec3(1, 0, 0)).norm(), 0.0, 1e-15);
+  EXPECT_NEAR(tp.barycentric.sum(), 1.0, 1e-15);
+}
+
+TEST(RayTriangle, AnalyticHitAndWatertightEdge) {
+  const Vec3 a(0, 0, 0), b(1, 0, 0), c(0, 1, 0), d(1, 1, 0);
+  auto hit = intersect_ray_triangle(Vec3(0.2, 0.3, 2.0), Vec3(0, 0, -0.5), a, b, c);
+  ASSERT_TRUE(hit);
+  EXPECT_NEAR(hit->t, 4.0, 1e-15);
+  EXPECT_NEAR((hit->barycentric - Vec3(0.5, 0.2, 0.3)).norm(), 0.0, 1e-15);
+  EXPECT_NEAR((hit->normal - Vec3(0, 0, 1)).norm(), 0.0, 1e-15);
+  EXPECT_TRUE(hit->front_facing);
+  EXPECT_FALSE(intersect_ray_triangle(Vec3(0.8, 0.8, 2.0), Vec3(0, 0, -1), a, b, c));
+  // Rays aimed at points of the shared diagonal b-c of the quad (a b c), (b d c) hit at least one.
+  std::mt19937_64 rng(3);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (int i = 0; i < 10000; ++i) {
+    const double s = u(rng);
+    const Vec3 target = (1.0 - s) * b + s * c;
+    const Vec3 origin(u(rng) - 0.5, u(rng) - 0.5, 1.0 + u(rng));
+    const Vec3 dir = target - origin;
+    const bool h1 = intersect_ray_triangle(origin, dir, a, b, c).has_value();
+    const bool h2 = intersect_ray_triangle(origin, dir, b, d, c).has_value();
+    ASSERT_TRUE(h1 || h2) << i;
+  }
+}
+
+TEST(WindingNumber, ClosedMeshIsOneInsideZeroOutside) {
+  const TriMesh m = make_torus(1.0, 0.3, 48, 24);
+  EXPECT_NEAR(compute_winding_number(m, Vec3(1.0, 0.0, 0.0)), 1.0, 1e-12);
+  EXPECT_NEAR(compute_winding_number(m, Vec3(0.0, 0.0, 0.0)), 0.0, 1e-12);
+  EXPECT_NEAR(compute_winding_number(m, Vec3(0.0, 0.0, 0.5)), 0.0, 1e-12);
+  EXPECT_NEAR(compute_winding_number(m, Vec3(5.0, 3.0, 1.0)), 0.0, 1e-12);
+  // One triangle seen from far along its normal: solid angle ~ area / r^2, positive from behind.
+  const Vec3 a(0, 0, 0), b(1e-3, 0, 0), c(0, 1e-3, 0);
+  EXPECT_NEAR(compute_solid_angle(Vec3(0, 0, -1), a, b, c), 0.5e-6, 1e-11);
+  EXPECT_NEAR(compute_solid_angle(Vec3(0, 0, 1), a, b, c), -0.5e-6, 1e-11);
+}
+
+TEST(MeshQuery, IcosphereAgainstBruteForce) {
+  check_against_brute_force(make_icosphere(0.05, 3), 1500, 500, 11);
+}
+
+TEST(MeshQuery, TorusAgainstBruteForce) {
+  check_against_brute_force(make_torus(0.04, 0.012, 40, 20), 1500, 500, 12);
+}
+
+TEST(MeshQuery, BoxAgainstBruteForce) {
+  check_against_brute_force(make_box(Vec3(0.03, 0.01, 0.02)), 2000, 1000, 13);
+}
+
+TEST(MeshQuery, FarAwayAndOffsetMesh) {
+  // A small mesh far from the origin: float rounding of coordinates is larger than its features.
+  TriMesh m = make_ellipsoid(Vec3(0.02, 0.01, 0.015), 3);
+  m.V.rowwise() += Eigen::RowVector3d(120.0, -75.0, 33.0);
+  check_against_brute_force(m, 800, 400, 14);
+}
+
+TEST(MeshQuery, SphereSignedDistanceIsAnalyticAtVertices) {
+  // Points on rays through the vertices: the closest point of the inscribed polyhedron is that
+  // vertex when outside, so the distance is |p| - r exactly; inside it is at most r - |p|.
+  const double r = 0.1;
+  const TriMesh m = make_icosphere(r, 2);
+  const MeshQuery q(m);
+  for (Eigen::Index v = 0; v < m.V.rows(); ++v) {
+    const Vec3 dir = m.V.row(v).transpose() / r;
+    EXPECT_NEAR(q.calc_signed_distance(1.3 * r * dir), 0.3 * r, 1e-15);
+    const double inside = q.calc_signed_distance(0.5 * r * dir);
+    EXPECT_LT(inside, 0.0);
+    EXPECT_LE(-inside, 0.5 * r + 1e-15);
+    EXPECT_GT(-inside, 0.5 * r * 0.95);  // the polyhedron is within 5% of the sphere
+  }
+}
+
+TEST(MeshQuery, RaysAgainstBruteForce) {
+  const TriMesh m = make_torus(0.04, 0.012, 40, 20);
+  const MeshQuery q(m);
+  std::mt19937_64 rng(21);
+  std::normal_distribution<double> g(0.0, 1.0);
+  int hit_count = 0;
+  for (int i = 0; i < 1500; ++i) {
+    const Vec3 o = 0.05 * Vec3(g(rng), g(rng), 0.3 * g(rng));
+    const Vec3 d = Vec3(g(rng), g(rng), g(rng)) * (0.5 + std::abs(g(rng)));  // not unit
+    const std::vector<RayHit> bf = brute_hits(m, o, d);
+    const std::vector<RayHit> all = q.cast_ray_all(o, d);
+    ASSERT_EQ(all.size(), bf.size()) << "ray " << i;
+    for (std::size_t k = 0; k < bf.size(); ++k) {
+      ASSERT_EQ(all[k].triangle, bf[k].triangle);
+      ASSERT_EQ(all[k].t, bf[k].t);
+    }
+    const std::optional<RayHit> first = q.cast_ray(o, d);
+    ASSERT_EQ(first.has_value(), !bf.empty());
+    if (first) {
+      ++hit_count;
+      ASSERT_EQ(first->t, bf.front().t);
+      ASSERT_EQ(first->triangle, bf.front().triangle);
+      const Vec3 x = o + first->t * d;
+      const Eigen::Index f = first->triangle;
+      const Vec3 y = first->barycentric[0] * vertex(m, f, 0) + first->barycentric[1] * vertex(m, f, 1) +
+                     first->barycentric[2] * vertex(m, f, 2);
+      ASSERT_LT((x - y).norm(), 1e-14);
+    }
+    // A limited interval: hits within (t0, t1) only.
+    const auto limited = q.cast_ray_all(o, d, 0.01, 0.05);
+    const auto n_in = std::count_if(bf.begin(), bf.end(), [](const RayHit& h) { return h.t > 0.01 && h.t < 0.05; });
+    ASSERT_EQ(static_cast<long>(limited.size()), n_in);
+  }
+  EXPECT_GT(hit_count, 300);
+}
+
+TEST(MeshQuery, CrossingNumberIsWindingNumberOfClosedMesh) {
+  // Every primitive must be counted exactly once per ray: the signed sum is 1 inside, 0 outside.
+  const TriMesh m = make_icosphere(1.0, 3);
+  const MeshQuery q(m);
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> g(0.0, 1.0);
+  for (int i = 0; i < 2000; ++i) {
+    const Vec3 p(g(rng), g(rng), g(rng));
+    const Vec3 d(g(rng), g(rng), g(rng));
+    if (std::abs(p.norm() - 1.0) < 0.02) continue;  // between the polyhedron and the sphere
+    const std::optional<int> w = q.calc_crossing_number(p, d);
+    ASSERT_TRUE(w.has_value());
+    ASSERT_EQ(*w, p.norm() < 1.0 ? 1 : 0) << "point " << i;
+  }
+}
+
+TEST(MeshQuery, InsideTestToleratesASmallHole) {
+  // Remove the three triangles around one vertex... of an icosphere: a small hole. Parity along a
+  // single ray is wrong for every ray through the hole; the vote and the winding number are not.
+  TriMesh closed = make_icosphere(1.0, 3);
+  TriMesh open = closed;
+  std::vector<Eigen::Index> keep;
+  const Vec3 hole_centre = closed.V.row(0).transpose();
+  for (Eigen::Index f = 0; f < closed.F.rows(); ++f) {
+    const Vec3 c = (vertex(closed, f, 0) + vertex(closed, f, 1) + vertex(closed, f, 2)) / 3.0;
+    if ((c - hole_centre).norm() > 0.12) keep.push_back(f);
+  }
+  ASSERT_LT(keep.size(), static_cast<std::size_t>(closed.F.rows()));  // a hole was made
+  ASSERT_GT(keep.size(), static_cast<std::size_t>(closed.F.rows() - 8));  // and it is small
+  open.F.resize(static_cast<Eigen::Index>(keep.size()), 3);
+  for (std::size_t i = 0; i < keep.size(); ++i) open.F.row(static_cast<Eigen::Index>(i)) = closed.F.row(keep[i]);
+  const MeshQuery q(open);
+  std::mt19937_64 rng(9);
+  std::normal_distribution<double> g(0.0, 1.0);
+  int rays_through_hole = 0;
+  for (int i = 0; i < 3000; ++i) {
+    Vec3 p(g(rng), g(rng), g(rng));
+    if (std::abs(p.norm() - 1.0) < 0.05) continue;
+    const bool truth = p.norm() < 1.0;
+    ASSERT_EQ(q.calc_is_inside(p), truth) << "point " << p.transpose();
+    ASSERT_EQ(compute_winding_number(open, p) > 0.5, truth);
+    // Count how often a single ray towards the hole gets it wrong (the hole is really open).
+    const std::optional<int> w = q.calc_crossing_number(p, hole_centre - p);
+    if (w && (*w > 0) != truth) ++rays_through_hole;
+  }
+  EXPECT_GT(rays_through_hole, 100);
+}
+
+TEST(MeshQuery, BatchedResultsDoNotDependOnThreadCount) {
+  const TriMesh m = make_torus(0.04, 0.012, 40, 20);
+  const MeshQuery q(m);
+  const Points3 P = sample_points(m, 5000, 1000, 31);
+  std::vector<ClosestPoint> one, two;
+  VecX sd1, sd2;
+  {
+    ThreadLimit limit(1);
+    one = q.calc_closest_points(P);
+    sd1 = q.calc_signed_distances(P);
+  }
+  {
+    ThreadLimit limit(2);
+    two = q.calc_closest_points(P);
+    sd2 = q.calc_signed_distances(P);
+  }
+  for (std::size_t i = 0; i < one.size(); ++i) {
+    ASSERT_EQ(one[i].triangle, two[i].triangle);
+    ASSERT_EQ(one[i].distance, two[i].distance);
+    ASSERT_EQ(one[i].point, two[i].point);
+  }
+  EXPECT_EQ(sd1, sd2);
+}
+
+TEST(MeshQuery, BadInputIsRejectedWithAClearError) {
+  EXPECT_THROW(MeshQuery{TriMesh{}}, Error);
+  TriMesh m = make_box(Vec3(1, 1, 1));
+  m.F(3, 1) = 99;
+  try {
+    MeshQuery q(m);
+    FAIL() << "out-of-range index accepted";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+    EXPECT_NE(std::string(e.what()).find("out of range"), std::string::npos);
+  }
+  m = make_box(Vec3(1, 1, 1));
+  m.V(2, 2) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(MeshQuery{m}, Error);
+  const MeshQuery q(make_box(Vec3(1, 1, 1)));
+  EXPECT_THROW(q.cast_ray(Vec3::Zero(), Vec3::Zero()), Error);
+  EXPECT_THROW(q.calc_closest_point(Vec3(std::nan(""), 0, 0)), Error);
+  // A max distance that excludes the whole mesh gives no triangle.
+  EXPECT_EQ(q.calc_closest_point(Vec3(5, 0, 0), 1.0).triangle, -1);
+  EXPECT_NEAR(q.calc_closest_point(Vec3(5, 0, 0), 4.5).distance, 4.0, 1e-15);
+}
+
+// Binary STL in millimetres -> metres. A minimal reader for this test only: test_geometry links the
+// geometry module alone (fascicle::read_mesh lives in the io module, a layer above).
+TriMesh read_binary_stl_mm(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  char header[80];
+  std::uint32_t n = 0;
+  in.read(header, 80);
+  in.read(reinterpret_cast<char*>(&n), 4);
+  TriMesh m;
+  m.V.resize(3 * n, 3);
+  m.F.resize(n, 3);
+  for (std::uint32_t t = 0; t < n && in; ++t) {
+    float rec[12];
+    std::uint16_t attr = 0;
+    in.read(reinterpret_cast<char*>(rec), sizeof rec);
+    in.read(reinterpret_cast<char*>(&attr), 2);
+    for (int k = 0; k < 3; ++k) {
+      for (int j = 0; j < 3; ++j) m.V(3 * t + k, j) = 1e-3 * static_cast<double>(rec[3 + 3 * k + j]);
+      m.F(t, k) = static_cast<int>(3 * t + k);
+    }
+  }
+  if (!in) throw std::runtime_error("truncated STL " + path.string());
+  return m;
+}
+
+TEST(MeshQuery, VisibleHumanTibiaAgainstBruteForce) {
+  const TriMesh tibia =
+      read_binary_stl_mm(test::data_path("visible_human_female/right/VHF_Right_Bone_Tibia_smooth.stl"));
+  ASSERT_GT(tibia.F.rows(), 50000);
+  check_against_brute_force(tibia, 150, 60, 41);
+}
+
+}  // namespace
+}  // namespace fascicle
