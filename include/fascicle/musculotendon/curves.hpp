@@ -1,0 +1,109 @@
+// Normalised Hill-model curves of OpenSim 4.5's Thelen2003Muscle, Millard2012EquilibriumMuscle and
+// DeGrooteFregly2016Muscle, each with its analytic first derivative and its integral (the
+// normalised elastic energy). Lengths are normalised by l0 (fibre) or lTs (tendon), velocities by
+// l0·vmax (negative = shortening), forces by F0. Pure functions: no model, no state.
+#pragma once
+
+#include "fascicle/musculotendon/parameters.hpp"
+
+#include <array>
+#include <vector>
+
+namespace fascicle {
+
+// A curve sample: y(x) and dy/dx.
+struct CurvePoint {
+  double value = 0.0;
+  double derivative = 0.0;
+};
+
+// ---------------------------------------------------------------- Thelen 2003 (OpenSim form)
+// Active force-length: exp(-(l-1)²/KshapeActive).
+CurvePoint thelen_active_force_length(const ThelenCurveParameters& p, double norm_fiber_length);
+// Passive force-length: (exp(kPE(l-1)/e0) - 1)/(exp(kPE) - 1) for l > 1, else 0.
+CurvePoint thelen_passive_force_length(const ThelenCurveParameters& p, double norm_fiber_length);
+// ∫_1^l f_PE dl' (normalised passive energy, F0·l0 units).
+double thelen_passive_force_length_integral(const ThelenCurveParameters& p, double norm_fiber_length);
+// Tendon: exponential toe (kToe = 3, Ftoe = 0.33) then linear, in tendon strain ε = lT/lTs - 1.
+CurvePoint thelen_tendon_force_length(const ThelenCurveParameters& p, double norm_tendon_length);
+// ∫_1^lT f_T dl' (normalised tendon energy, F0·lTs units).
+double thelen_tendon_force_length_integral(const ThelenCurveParameters& p, double norm_tendon_length);
+// Strain at the end of the toe region, 99 e0 e³/(166 e³ − 67), and the linear stiffness
+// 67/(100 (e0 − ε_toe)) (OpenSim's exact forms of Thelen's rounded 0.609 e0 and 1.712/e0).
+double thelen_tendon_toe_strain(double fmax_tendon_strain);
+double thelen_tendon_linear_stiffness(double fmax_tendon_strain);
+// OpenSim Thelen2003Muscle::calcdlceN: normalised fibre velocity (l0·vmax units) at which the
+// fibre develops the active force a·fal·fv, with the linear extrapolations of OpenSim.
+double thelen_norm_fiber_velocity(const ThelenCurveParameters& p, double activation, double fal,
+                                  double active_force_norm);
+// Its inverse: fv(v; a) (value, ∂fv/∂v). fv is independent of fal.
+CurvePoint thelen_force_velocity(const ThelenCurveParameters& p, double activation,
+                                 double norm_fiber_velocity);
+
+// ---------------------------------------------------------------- Millard 2012 (quintic Bézier)
+// A C²-continuous curve of quintic Bézier segments, extrapolated linearly outside (OpenSim's
+// SmoothSegmentedFunction). Built once; evaluation solves x(u) = x for the Bézier parameter u.
+class SmoothSegmentedCurve {
+ public:
+  struct Segment {
+    std::array<double, 6> x{};  // control-point abscissae (increasing)
+    std::array<double, 6> y{};  // control-point ordinates
+  };
+  SmoothSegmentedCurve() = default;
+  // dydx_left/right: slopes of the linear extrapolations (OpenSim's dydx0 / dydx1).
+  SmoothSegmentedCurve(std::vector<Segment> segments, double dydx_left, double dydx_right);
+
+  CurvePoint calc(double x) const;
+  double calc_value(double x) const { return calc(x).value; }
+  // ∫_{x_begin}^{x} y dx (exact: 5-point Gauss-Legendre on the degree-9 integrand in u).
+  double calc_integral(double x) const;
+  // x such that y(x) = y, for curves that are strictly increasing (bisection-safeguarded Newton).
+  double calc_inverse(double y) const;
+  double get_x_begin() const { return segments_.front().x[0]; }
+  double get_x_end() const { return segments_.back().x[5]; }
+  const std::vector<Segment>& get_segments() const { return segments_; }
+  bool empty() const { return segments_.empty(); }
+
+ private:
+  std::vector<Segment> segments_;
+  std::vector<double> integral_at_start_;  // ∫ from x_begin to each segment's start
+  double dydx_left_ = 0.0, dydx_right_ = 0.0;
+};
+
+// Corner control points between (x0, y0, slope dydx0) and (x1, y1, dydx1), curviness c ∈ [0, 1]
+// scaled to 0.1 + 0.8 c (SegmentedQuinticBezierToolkit::calcQuinticBezierCornerControlPoints).
+// Throws bad_input when the two lines do not form a "C"-shaped corner.
+SmoothSegmentedCurve::Segment make_bezier_corner(double x0, double y0, double dydx0, double x1,
+                                                 double y1, double dydx1, double curviness);
+
+// The four curves of a Millard muscle, built from its parameters exactly as OpenSim 4.5's
+// SmoothSegmentedFunctionFactory does.
+struct MillardCurves {
+  SmoothSegmentedCurve active_force_length;
+  SmoothSegmentedCurve force_velocity;
+  SmoothSegmentedCurve passive_force_length;
+  SmoothSegmentedCurve tendon_force_length;
+};
+SmoothSegmentedCurve make_millard_active_force_length(const MillardCurveParameters& p);
+SmoothSegmentedCurve make_millard_force_velocity(const MillardCurveParameters& p);
+SmoothSegmentedCurve make_millard_passive_force_length(const MillardCurveParameters& p);
+SmoothSegmentedCurve make_millard_tendon_force_length(const MillardCurveParameters& p);
+MillardCurves make_millard_curves(const MillardCurveParameters& p);
+
+// ---------------------------------------------------------------- De Groote et al. 2016
+// Active force-length: sum of three Gaussian-like terms (widths scaled by active_force_width_scale).
+CurvePoint degroote_active_force_length(const DeGrooteCurveParameters& p, double norm_fiber_length);
+// Passive: (exp(kPE (l−1)/e0) − exp(kPE (0.2−1)/e0)) / (exp(kPE) − exp(kPE (0.2−1)/e0)), kPE = 4.
+CurvePoint degroote_passive_force_length(const DeGrooteCurveParameters& p, double norm_fiber_length);
+double degroote_passive_force_length_integral(const DeGrooteCurveParameters& p,
+                                              double norm_fiber_length);  // ∫ from l = 0.2
+// Tendon: c1 exp(kT (lT − c2)) − c3 with c1 = 0.2, c2 = 1, c3 = 0.2, kT = ln(6)/εT.
+CurvePoint degroote_tendon_force_length(const DeGrooteCurveParameters& p, double norm_tendon_length);
+double degroote_tendon_force_length_integral(const DeGrooteCurveParameters& p,
+                                             double norm_tendon_length);  // ∫ from lT = 1
+double degroote_norm_tendon_length(const DeGrooteCurveParameters& p, double norm_tendon_force);
+// Force-velocity: d1 ln(d2 v + d3 + sqrt((d2 v + d3)² + 1)) + d4, and its closed-form inverse.
+CurvePoint degroote_force_velocity(double norm_fiber_velocity);
+double degroote_force_velocity_inverse(double fv);
+
+}  // namespace fascicle

@@ -1,0 +1,439 @@
+// Normalised muscle curves. Sources: Thelen 2003 and OpenSim's Thelen2003Muscle; Millard et al.
+// 2013 and OpenSim's SmoothSegmentedFunctionFactory (curve construction reproduced from its
+// documented algorithm); De Groote et al. 2016 (Ann Biomed Eng 44:2922), appendix.
+#include "fascicle/musculotendon/curves.hpp"
+
+#include "fascicle/core/error.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <utility>
+
+namespace fascicle {
+
+// ============================================================================ Thelen 2003
+CurvePoint thelen_active_force_length(const ThelenCurveParameters& p, double l) {
+  const double d = l - 1.0;
+  const double v = std::exp(-d * d / p.KshapeActive);
+  return {v, -2.0 * d / p.KshapeActive * v};
+}
+
+CurvePoint thelen_passive_force_length(const ThelenCurveParameters& p, double l) {
+  if (l <= 1.0) return {0.0, 0.0};
+  const double k = p.KshapePassive, e0 = p.FmaxMuscleStrain;
+  const double ex = std::exp(k * (l - 1.0) / e0), den = std::exp(k) - 1.0;
+  return {(ex - 1.0) / den, k / e0 * ex / den};
+}
+
+double thelen_passive_force_length_integral(const ThelenCurveParameters& p, double l) {
+  if (l <= 1.0) return 0.0;
+  const double k = p.KshapePassive, e0 = p.FmaxMuscleStrain;
+  return (e0 / k * std::expm1(k * (l - 1.0) / e0) - (l - 1.0)) / (std::exp(k) - 1.0);
+}
+
+double thelen_tendon_toe_strain(double e0) {
+  const double e3 = std::exp(3.0);
+  return 99.0 * e0 * e3 / (166.0 * e3 - 67.0);
+}
+
+double thelen_tendon_linear_stiffness(double e0) {
+  return 0.67 / (e0 - thelen_tendon_toe_strain(e0));
+}
+
+namespace {
+constexpr double kThelenToeShape = 3.0;   // kToe
+constexpr double kThelenToeForce = 0.33;  // Ftoe
+}  // namespace
+
+CurvePoint thelen_tendon_force_length(const ThelenCurveParameters& p, double lt) {
+  const double x = lt - 1.0;
+  const double etoe = thelen_tendon_toe_strain(p.FmaxTendonStrain);
+  const double klin = thelen_tendon_linear_stiffness(p.FmaxTendonStrain);
+  if (x > etoe) return {klin * (x - etoe) + kThelenToeForce, klin};
+  if (x > 0.0) {
+    const double c = kThelenToeForce / std::expm1(kThelenToeShape);
+    const double ex = std::exp(kThelenToeShape * x / etoe);
+    return {c * (ex - 1.0), c * kThelenToeShape / etoe * ex};
+  }
+  return {0.0, 0.0};
+}
+
+double thelen_tendon_force_length_integral(const ThelenCurveParameters& p, double lt) {
+  const double x = lt - 1.0;
+  if (x <= 0.0) return 0.0;
+  const double etoe = thelen_tendon_toe_strain(p.FmaxTendonStrain);
+  const double klin = thelen_tendon_linear_stiffness(p.FmaxTendonStrain);
+  const double c = kThelenToeForce / std::expm1(kThelenToeShape);
+  const auto toe = [&](double e) {
+    return c * (etoe / kThelenToeShape * std::expm1(kThelenToeShape * e / etoe) - e);
+  };
+  if (x <= etoe) return toe(x);
+  const double d = x - etoe;
+  return toe(etoe) + 0.5 * klin * d * d + kThelenToeForce * d;
+}
+
+namespace {
+// Thelen's normalised velocity as a function of fv = F/(a·fal) on its two hyperbolic branches,
+// with derivative; c = 0.25 + 0.75 a scales vmax with activation (Thelen 2003, eq. 6).
+struct ThelenFv {
+  double c, Af, Flen, K, T;  // K = 2 + 2/Af, T = threshold·Flen
+  double g(double fv) const {
+    if (fv <= 1.0) return c * (fv - 1.0) / (1.0 + fv / Af);
+    return c * (fv - 1.0) * (Flen - 1.0) / (K * (Flen - fv));
+  }
+  double dg(double fv) const {
+    if (fv <= 1.0) {
+      const double q = 1.0 + fv / Af;
+      return c * (1.0 + 1.0 / Af) / (q * q);
+    }
+    const double q = Flen - fv;
+    return c * (Flen - 1.0) * (Flen - 1.0) / (K * q * q);
+  }
+};
+ThelenFv make_thelen_fv(const ThelenCurveParameters& p, double a) {
+  return {0.25 + 0.75 * a, p.Af, p.Flen, 2.0 + 2.0 / p.Af, p.fv_linear_extrap_threshold * p.Flen};
+}
+}  // namespace
+
+double thelen_norm_fiber_velocity(const ThelenCurveParameters& p, double a, double fal,
+                                  double active_force_norm) {
+  const ThelenFv t = make_thelen_fv(p, a);
+  const double afl = a * fal;
+  const double fv = active_force_norm / afl;
+  if (fv < 0.0) return t.g(0.0) + t.dg(0.0) * fv;
+  if (fv > t.T) return t.g(t.T) + t.dg(t.T) * (fv - t.T);
+  return t.g(fv);
+}
+
+CurvePoint thelen_force_velocity(const ThelenCurveParameters& p, double a, double v) {
+  const ThelenFv t = make_thelen_fv(p, a);
+  double fv = 0.0;
+  if (v < t.g(0.0)) {
+    fv = (v - t.g(0.0)) / t.dg(0.0);
+    return {fv, 1.0 / t.dg(0.0)};
+  }
+  if (v > t.g(t.T)) {
+    fv = t.T + (v - t.g(t.T)) / t.dg(t.T);
+    return {fv, 1.0 / t.dg(t.T)};
+  }
+  if (v <= 0.0) {
+    fv = (t.c + v) / (t.c - v / t.Af);
+  } else {
+    const double m = t.c * (t.Flen - 1.0);
+    fv = (v * t.K * t.Flen + m) / (m + v * t.K);
+  }
+  return {fv, 1.0 / t.dg(fv)};
+}
+
+// ============================================================================ Bézier curves
+namespace {
+constexpr double kBinom5[6] = {1, 5, 10, 10, 5, 1};
+constexpr double kBinom4[5] = {1, 4, 6, 4, 1};
+
+double bezier(const std::array<double, 6>& p, double u) {
+  const double w = 1.0 - u;
+  double upow[6], wpow[6];
+  upow[0] = wpow[0] = 1.0;
+  for (int i = 1; i < 6; ++i) {
+    upow[i] = upow[i - 1] * u;
+    wpow[i] = wpow[i - 1] * w;
+  }
+  double s = 0.0;
+  for (int i = 0; i < 6; ++i) s += kBinom5[i] * upow[i] * wpow[5 - i] * p[i];
+  return s;
+}
+
+double bezier_du(const std::array<double, 6>& p, double u) {
+  const double w = 1.0 - u;
+  double upow[5], wpow[5];
+  upow[0] = wpow[0] = 1.0;
+  for (int i = 1; i < 5; ++i) {
+    upow[i] = upow[i - 1] * u;
+    wpow[i] = wpow[i - 1] * w;
+  }
+  double s = 0.0;
+  for (int i = 0; i < 5; ++i) s += kBinom4[i] * upow[i] * wpow[4 - i] * (p[i + 1] - p[i]);
+  return 5.0 * s;
+}
+
+// u ∈ [0, 1] with x(u) = x on a segment whose x(u) is non-decreasing.
+double solve_u(const SmoothSegmentedCurve::Segment& s, double x) {
+  double lo = 0.0, hi = 1.0;
+  double u = (x - s.x[0]) / (s.x[5] - s.x[0]);
+  u = std::clamp(u, 0.0, 1.0);
+  for (int it = 0; it < 100; ++it) {
+    const double f = bezier(s.x, u) - x;
+    if (f == 0.0) return u;
+    if (f < 0.0) lo = u; else hi = u;
+    if (hi - lo <= 4.0 * std::numeric_limits<double>::epsilon()) break;
+    const double d = bezier_du(s.x, u);
+    double next = (d > 0.0) ? u - f / d : 0.5 * (lo + hi);
+    if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+    if (std::abs(next - u) <= 1e-16) { u = next; break; }
+    u = next;
+  }
+  return u;
+}
+
+// ∫_0^u y(s) x'(s) ds, exact for the degree-9 polynomial integrand (5-point Gauss-Legendre).
+double segment_integral(const SmoothSegmentedCurve::Segment& s, double u) {
+  static constexpr double kNodes[5] = {-0.9061798459386640, -0.5384693101056831, 0.0,
+                                       0.5384693101056831, 0.9061798459386640};
+  static constexpr double kWeights[5] = {0.2369268850561891, 0.4786286704993665,
+                                         0.5688888888888889, 0.4786286704993665,
+                                         0.2369268850561891};
+  double sum = 0.0;
+  for (int i = 0; i < 5; ++i) {
+    const double t = 0.5 * u * (kNodes[i] + 1.0);
+    sum += kWeights[i] * bezier(s.y, t) * bezier_du(s.x, t);
+  }
+  return 0.5 * u * sum;
+}
+}  // namespace
+
+SmoothSegmentedCurve::SmoothSegmentedCurve(std::vector<Segment> segments, double dydx_left,
+                                           double dydx_right)
+    : segments_(std::move(segments)), dydx_left_(dydx_left), dydx_right_(dydx_right) {
+  double acc = 0.0;
+  for (const Segment& s : segments_) {
+    integral_at_start_.push_back(acc);
+    acc += segment_integral(s, 1.0);
+  }
+  integral_at_start_.push_back(acc);
+}
+
+CurvePoint SmoothSegmentedCurve::calc(double x) const {
+  const Segment& first = segments_.front();
+  const Segment& last = segments_.back();
+  if (x < first.x[0]) return {first.y[0] + dydx_left_ * (x - first.x[0]), dydx_left_};
+  if (x > last.x[5]) return {last.y[5] + dydx_right_ * (x - last.x[5]), dydx_right_};
+  for (const Segment& s : segments_) {
+    if (x <= s.x[5]) {
+      const double u = solve_u(s, x);
+      return {bezier(s.y, u), bezier_du(s.y, u) / bezier_du(s.x, u)};
+    }
+  }
+  return {last.y[5], dydx_right_};
+}
+
+double SmoothSegmentedCurve::calc_integral(double x) const {
+  const Segment& first = segments_.front();
+  const Segment& last = segments_.back();
+  if (x < first.x[0]) {
+    const double d = x - first.x[0];
+    return first.y[0] * d + 0.5 * dydx_left_ * d * d;
+  }
+  if (x > last.x[5]) {
+    const double d = x - last.x[5];
+    return integral_at_start_.back() + last.y[5] * d + 0.5 * dydx_right_ * d * d;
+  }
+  for (size_t i = 0; i < segments_.size(); ++i) {
+    if (x <= segments_[i].x[5]) {
+      return integral_at_start_[i] + segment_integral(segments_[i], solve_u(segments_[i], x));
+    }
+  }
+  return integral_at_start_.back();
+}
+
+double SmoothSegmentedCurve::calc_inverse(double y) const {
+  // Bracket in x (linear extrapolation beyond the ends), then safeguarded Newton.
+  double lo = get_x_begin(), hi = get_x_end();
+  double span = hi - lo;
+  for (int i = 0; i < 60 && calc(lo).value > y; ++i) lo -= span, span *= 2.0;
+  span = hi - lo;
+  for (int i = 0; i < 60 && calc(hi).value < y; ++i) hi += span, span *= 2.0;
+  double x = 0.5 * (lo + hi);
+  for (int it = 0; it < 200; ++it) {
+    const CurvePoint c = calc(x);
+    const double f = c.value - y;
+    if (f == 0.0) return x;
+    if (f < 0.0) lo = x; else hi = x;
+    if (hi - lo <= 1e-15 * std::max(1.0, std::abs(x))) break;
+    double next = (c.derivative > 0.0) ? x - f / c.derivative : 0.5 * (lo + hi);
+    if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+    x = next;
+  }
+  return x;
+}
+
+SmoothSegmentedCurve::Segment make_bezier_corner(double x0, double y0, double dydx0, double x1,
+                                                 double y1, double dydx1, double curviness) {
+  if (!(curviness >= 0.0 && curviness <= 1.0)) {
+    throw_bad_input("Bezier corner curviness must be in [0, 1], got " + std::to_string(curviness));
+  }
+  const double c = 0.1 + 0.8 * curviness;
+  // Intersection of the two tangent lines.
+  const double xc = (std::abs(dydx0 - dydx1) > std::sqrt(std::numeric_limits<double>::epsilon()))
+                        ? (y1 - y0 - x1 * dydx1 + x0 * dydx0) / (dydx0 - dydx1)
+                        : 0.5 * (x0 + x1);
+  const double yc = (xc - x1) * dydx1 + y1;
+  const double a2 = (xc - x0) * (xc - x0) + (yc - y0) * (yc - y0);
+  const double b2 = (xc - x1) * (xc - x1) + (yc - y1) * (yc - y1);
+  const double c2 = (x1 - x0) * (x1 - x0) + (y1 - y0) * (y1 - y0);
+  if (!(c2 > a2 && c2 > b2)) {
+    throw_bad_input("curve parameters do not form a C-shaped Bezier corner between (" +
+                        std::to_string(x0) + ", " + std::to_string(y0) + ") and (" +
+                        std::to_string(x1) + ", " + std::to_string(y1) + ")",
+                    {.suggestion = "check the slopes and strains of the Millard curve parameters"});
+  }
+  const double x0m = x0 + c * (xc - x0), y0m = y0 + c * (yc - y0);
+  const double x1m = x1 + c * (xc - x1), y1m = y1 + c * (yc - y1);
+  return {{x0, x0m, x0m, x1m, x1m, x1}, {y0, y0m, y0m, y1m, y1m, y1}};
+}
+
+SmoothSegmentedCurve make_millard_active_force_length(const MillardCurveParameters& p) {
+  const double x0 = p.min_norm_active_fiber_length, x1 = p.transition_norm_fiber_length;
+  const double x2 = 1.0, x3 = p.max_norm_active_fiber_length;
+  const double ylow = p.minimum_value, dydx = p.shallow_ascending_slope;
+  const double curviness = 1.0;  // fixed in OpenSim's ActiveForceLengthCurve
+  // Five elbows: ascending limb, shallow plateau, shoulder, descending limb (OpenSim 4.x layout).
+  const double xDelta = 0.05 * x2;
+  const double xs = x2 - xDelta;
+  const double y1 = 1.0 - dydx * (xs - x1);
+  const double dydx01 = 1.25 * y1 / (x1 - x0);
+  const double x01 = x0 + 0.5 * (x1 - x0), y01 = 0.5 * y1;
+  const double x1s = x1 + 0.5 * (xs - x1), y1s = y1 + 0.5 * (1.0 - y1);
+  const double x23 = (x2 + xDelta) + 0.5 * (x3 - (x2 + xDelta)), y23 = 0.5;
+  const double dydx23 = -1.0 / ((x3 - xDelta) - (x2 + xDelta));
+  std::vector<SmoothSegmentedCurve::Segment> s;
+  s.push_back(make_bezier_corner(x0, ylow, 0.0, x01, y01, dydx01, curviness));
+  s.push_back(make_bezier_corner(x01, y01, dydx01, x1s, y1s, dydx, curviness));
+  s.push_back(make_bezier_corner(x1s, y1s, dydx, x2, 1.0, 0.0, curviness));
+  s.push_back(make_bezier_corner(x2, 1.0, 0.0, x23, y23, dydx23, curviness));
+  s.push_back(make_bezier_corner(x23, y23, dydx23, x3, ylow, 0.0, curviness));
+  return SmoothSegmentedCurve(std::move(s), 0.0, 0.0);
+}
+
+SmoothSegmentedCurve make_millard_force_velocity(const MillardCurveParameters& p) {
+  const double fmaxE = p.max_eccentric_velocity_force_multiplier;
+  const double dC = p.concentric_slope_at_vmax, dNC = p.concentric_slope_near_vmax;
+  const double dIso = p.isometric_slope;
+  const double dE = p.eccentric_slope_at_vmax, dNE = p.eccentric_slope_near_vmax;
+  const double xNC = -0.9, yNC = 0.5 * dNC * (xNC + 1.0) + 0.5 * dC * (xNC + 1.0);
+  const double xNE = 0.9, yNE = fmaxE + 0.5 * dNE * (xNE - 1.0) + 0.5 * dE * (xNE - 1.0);
+  std::vector<SmoothSegmentedCurve::Segment> s;
+  s.push_back(make_bezier_corner(-1.0, 0.0, dC, xNC, yNC, dNC, p.concentric_curviness));
+  s.push_back(make_bezier_corner(xNC, yNC, dNC, 0.0, 1.0, dIso, p.concentric_curviness));
+  s.push_back(make_bezier_corner(0.0, 1.0, dIso, xNE, yNE, dNE, p.eccentric_curviness));
+  s.push_back(make_bezier_corner(xNE, yNE, dNE, 1.0, fmaxE, dE, p.eccentric_curviness));
+  return SmoothSegmentedCurve(std::move(s), dC, dE);
+}
+
+SmoothSegmentedCurve make_millard_passive_force_length(const MillardCurveParameters& p) {
+  const double xZero = 1.0 + p.fiber_strain_at_zero_force;
+  const double xIso = 1.0 + p.fiber_strain_at_one_norm_force;
+  const double kLow = p.fiber_stiffness_at_low_force, kIso = p.fiber_stiffness_at_one_norm_force;
+  const double deltaX = std::min(0.1 / kIso, 0.1 * (xIso - xZero));
+  const double xLow = xZero + deltaX;
+  const double xFoot = xZero + 0.5 * (xLow - xZero);
+  const double yLow = kLow * (xLow - xFoot);
+  std::vector<SmoothSegmentedCurve::Segment> s;
+  s.push_back(make_bezier_corner(xZero, 0.0, 0.0, xLow, yLow, kLow, p.fiber_curviness));
+  s.push_back(make_bezier_corner(xLow, yLow, kLow, xIso, 1.0, kIso, p.fiber_curviness));
+  return SmoothSegmentedCurve(std::move(s), 0.0, kIso);
+}
+
+SmoothSegmentedCurve make_millard_tendon_force_length(const MillardCurveParameters& p) {
+  const double eIso = p.tendon_strain_at_one_norm_force;
+  const double kIso = p.tendon_stiffness_at_one_norm_force;
+  const double fToe = p.tendon_norm_force_at_toe_end;
+  const double xIso = 1.0 + eIso;
+  const double xToe = (fToe - 1.0) / kIso + xIso;
+  const double xFoot = 1.0 + (xToe - 1.0) / 10.0;
+  const double yToeMid = 0.5 * fToe;
+  const double xToeMid = (yToeMid - 1.0) / kIso + xIso;
+  const double dydxToeMid = yToeMid / (xToeMid - xFoot);
+  const double xToeCtrl = xFoot + 0.5 * (xToeMid - xFoot);
+  const double yToeCtrl = dydxToeMid * (xToeCtrl - xFoot);
+  std::vector<SmoothSegmentedCurve::Segment> s;
+  s.push_back(make_bezier_corner(1.0, 0.0, 0.0, xToeCtrl, yToeCtrl, dydxToeMid, p.tendon_curviness));
+  s.push_back(make_bezier_corner(xToeCtrl, yToeCtrl, dydxToeMid, xToe, fToe, kIso, p.tendon_curviness));
+  return SmoothSegmentedCurve(std::move(s), 0.0, kIso);
+}
+
+MillardCurves make_millard_curves(const MillardCurveParameters& p) {
+  return {make_millard_active_force_length(p), make_millard_force_velocity(p),
+          make_millard_passive_force_length(p), make_millard_tendon_force_length(p)};
+}
+
+// ============================================================================ De Groote 2016
+namespace {
+struct Gauss {
+  double b1, b2, b3, b4;
+};
+constexpr Gauss kDeGrooteActive[3] = {{0.814483478343008, 1.055033428970575, 0.162384573599574,
+                                       0.063303448465465},
+                                      {0.433004984392647, 0.716775413397760, -0.029947116970696,
+                                       0.200356847296188},
+                                      {0.1, 1.0, 0.353553390593274, 0.0}};
+constexpr double kDeGrooteKPE = 4.0;
+constexpr double kDeGrooteMinFiber = 0.2;
+constexpr double kC1 = 0.2, kC2 = 1.0, kC3 = 0.2;
+constexpr double kD1 = -0.3211346127989808, kD2 = -8.149, kD3 = -0.374, kD4 = 0.8825327733249912;
+
+double degroote_kT(const DeGrooteCurveParameters& p) {
+  return std::log((1.0 + kC3) / kC1) / (1.0 + p.tendon_strain_at_one_norm_force - kC2);
+}
+}  // namespace
+
+CurvePoint degroote_active_force_length(const DeGrooteCurveParameters& p, double l) {
+  const double s = 1.0 / p.active_force_width_scale;
+  const double x = 1.0 + (l - 1.0) * s;  // width scaling about l = 1
+  CurvePoint out;
+  for (const Gauss& g : kDeGrooteActive) {
+    const double den = g.b3 + g.b4 * x;
+    const double num = x - g.b2;
+    const double e = g.b1 * std::exp(-0.5 * num * num / (den * den));
+    out.value += e;
+    // d/dx of exp(-0.5 num²/den²) = -(num/den² - num² b4/den³)
+    out.derivative += e * (-(num / (den * den)) + num * num * g.b4 / (den * den * den)) * s;
+  }
+  return out;
+}
+
+CurvePoint degroote_passive_force_length(const DeGrooteCurveParameters& p, double l) {
+  const double e0 = p.passive_fiber_strain_at_one_norm_force;
+  const double offset = std::exp(kDeGrooteKPE * (kDeGrooteMinFiber - 1.0) / e0);
+  const double den = std::exp(kDeGrooteKPE) - offset;
+  const double ex = std::exp(kDeGrooteKPE * (l - 1.0) / e0);
+  return {(ex - offset) / den, kDeGrooteKPE / e0 * ex / den};
+}
+
+double degroote_passive_force_length_integral(const DeGrooteCurveParameters& p, double l) {
+  const double e0 = p.passive_fiber_strain_at_one_norm_force;
+  const double offset = std::exp(kDeGrooteKPE * (kDeGrooteMinFiber - 1.0) / e0);
+  const double den = std::exp(kDeGrooteKPE) - offset;
+  const auto prim = [&](double x) {
+    return e0 / kDeGrooteKPE * std::exp(kDeGrooteKPE * (x - 1.0) / e0) - offset * x;
+  };
+  return (prim(l) - prim(kDeGrooteMinFiber)) / den;
+}
+
+CurvePoint degroote_tendon_force_length(const DeGrooteCurveParameters& p, double lt) {
+  const double kT = degroote_kT(p);
+  const double e = kC1 * std::exp(kT * (lt - kC2));
+  return {e - kC3, kT * e};
+}
+
+double degroote_tendon_force_length_integral(const DeGrooteCurveParameters& p, double lt) {
+  const double kT = degroote_kT(p);
+  const auto prim = [&](double x) { return kC1 / kT * std::exp(kT * (x - kC2)) - kC3 * x; };
+  return prim(lt) - prim(1.0);
+}
+
+double degroote_norm_tendon_length(const DeGrooteCurveParameters& p, double f) {
+  return kC2 + std::log((f + kC3) / kC1) / degroote_kT(p);
+}
+
+CurvePoint degroote_force_velocity(double v) {
+  const double z = kD2 * v + kD3;
+  const double r = std::sqrt(z * z + 1.0);
+  return {kD1 * std::log(z + r) + kD4, kD1 * kD2 / r};
+}
+
+double degroote_force_velocity_inverse(double fv) {
+  return (std::sinh((fv - kD4) / kD1) - kD3) / kD2;
+}
+
+}  // namespace fascicle

@@ -1,0 +1,440 @@
+// Compiled musculotendon model, static equilibrium and first-order dynamics.
+// Equilibrium definitions follow OpenSim 4.5: Thelen2003Muscle::initMuscleState and
+// Millard2012EquilibriumMuscle::estimateMuscleFiberState (force error FmAT − FT, velocity shared
+// between fibre and tendon by relative stiffness, fv = 1 and no damping force at zero speed).
+#include "fascicle/musculotendon/muscle.hpp"
+
+#include "fascicle/core/error.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+namespace fascicle {
+
+namespace {
+constexpr double kMaxPennation = 1.4706289056333368;  // acos(0.1)
+constexpr double kMinNonzeroDamping = 0.001;          // OpenSim MIN_NONZERO_DAMPING_COEFFICIENT
+
+[[noreturn]] void fail_numerical(const Musculotendon& m, const std::string& what) {
+  throw_numerical("muscle '" + m.params.name + "': " + what,
+                  {.object = m.params.name,
+                   .suggestion = "check the musculotendon length and the muscle parameters"});
+}
+}  // namespace
+
+Musculotendon compile_musculotendon(const MuscleParameters& params) {
+  validate(params);
+  Musculotendon m;
+  m.params = params;
+  const double l0 = params.optimal_fiber_length_m;
+  m.parallelogram_height_m = l0 * std::sin(params.pennation_at_optimal_rad);
+  m.max_pennation_rad = kMaxPennation;
+  const double pennated_min = m.parallelogram_height_m / std::sin(kMaxPennation);
+  m.minimum_activation = params.minimum_activation;
+  switch (params.model) {
+    case MuscleModel::thelen2003:
+      m.min_fiber_length_m = std::max(pennated_min, 0.01 * l0);
+      m.fiber_damping = 0.0;
+      break;
+    case MuscleModel::degroote2016:
+      m.min_fiber_length_m = std::max(pennated_min, 0.2 * l0);
+      m.fiber_damping = params.degroote.fiber_damping;
+      break;
+    case MuscleModel::millard2012: {
+      MillardCurveParameters c = params.millard;
+      const bool damped = c.fiber_damping >= kMinNonzeroDamping;
+      if (!params.rigid_tendon && !damped) {
+        // OpenSim's undamped elastic-tendon mode avoids the singularities of the F-V inverse.
+        m.minimum_activation = std::max(0.01, m.minimum_activation);
+        c.minimum_value = std::max(0.1, c.minimum_value);
+        if (c.concentric_slope_at_vmax < 0.1 || c.eccentric_slope_at_vmax < 0.1) {
+          c.concentric_slope_at_vmax = 0.1;
+          c.eccentric_slope_at_vmax = 0.1;
+        }
+      } else {
+        c.minimum_value = 0.0;
+        c.concentric_slope_at_vmax = 0.0;
+        c.eccentric_slope_at_vmax = 0.0;
+      }
+      if (c.minimum_value != params.millard.minimum_value ||
+          m.minimum_activation != params.minimum_activation) {
+        spdlog::debug("muscle '{}': {} mode uses active-force-length minimum {} and minimum "
+                      "activation {} (as OpenSim)", params.name, damped ? "damped" : "undamped",
+                      c.minimum_value, m.minimum_activation);
+      }
+      m.fiber_damping = damped ? c.fiber_damping : 0.0;
+      m.millard_in_use = c;
+      m.millard = make_millard_curves(c);
+      m.min_fiber_length_m = std::max(pennated_min, c.min_norm_active_fiber_length * l0);
+      break;
+    }
+  }
+  return m;
+}
+
+CurvePoint calc_active_force_length(const Musculotendon& m, double l) {
+  switch (m.params.model) {
+    case MuscleModel::thelen2003: return thelen_active_force_length(m.params.thelen, l);
+    case MuscleModel::millard2012: return m.millard.active_force_length.calc(l);
+    case MuscleModel::degroote2016: return degroote_active_force_length(m.params.degroote, l);
+  }
+  return {};
+}
+
+CurvePoint calc_passive_force_length(const Musculotendon& m, double l) {
+  switch (m.params.model) {
+    case MuscleModel::thelen2003: return thelen_passive_force_length(m.params.thelen, l);
+    case MuscleModel::millard2012: return m.millard.passive_force_length.calc(l);
+    case MuscleModel::degroote2016: return degroote_passive_force_length(m.params.degroote, l);
+  }
+  return {};
+}
+
+CurvePoint calc_tendon_force_length(const Musculotendon& m, double lt) {
+  switch (m.params.model) {
+    case MuscleModel::thelen2003: return thelen_tendon_force_length(m.params.thelen, lt);
+    case MuscleModel::millard2012: return m.millard.tendon_force_length.calc(lt);
+    case MuscleModel::degroote2016: return degroote_tendon_force_length(m.params.degroote, lt);
+  }
+  return {};
+}
+
+CurvePoint calc_force_velocity(const Musculotendon& m, double a, double v) {
+  switch (m.params.model) {
+    case MuscleModel::thelen2003:
+      return thelen_force_velocity(m.params.thelen, std::clamp(a, m.minimum_activation, 1.0), v);
+    case MuscleModel::millard2012: return m.millard.force_velocity.calc(v);
+    case MuscleModel::degroote2016: return degroote_force_velocity(v);
+  }
+  return {};
+}
+
+double calc_passive_energy_J(const Musculotendon& m, double lM) {
+  const double l = lM / m.params.optimal_fiber_length_m;
+  double e = 0.0;
+  switch (m.params.model) {
+    case MuscleModel::thelen2003: e = thelen_passive_force_length_integral(m.params.thelen, l); break;
+    case MuscleModel::millard2012: e = m.millard.passive_force_length.calc_integral(l); break;
+    case MuscleModel::degroote2016:
+      e = degroote_passive_force_length_integral(m.params.degroote, l);
+      break;
+  }
+  return e * m.params.max_isometric_force_N * m.params.optimal_fiber_length_m;
+}
+
+double calc_tendon_energy_J(const Musculotendon& m, double lT) {
+  const double t = lT / m.params.tendon_slack_length_m;
+  double e = 0.0;
+  switch (m.params.model) {
+    case MuscleModel::thelen2003: e = thelen_tendon_force_length_integral(m.params.thelen, t); break;
+    case MuscleModel::millard2012: e = m.millard.tendon_force_length.calc_integral(t); break;
+    case MuscleModel::degroote2016:
+      e = degroote_tendon_force_length_integral(m.params.degroote, t);
+      break;
+  }
+  return e * m.params.max_isometric_force_N * m.params.tendon_slack_length_m;
+}
+
+double calc_tendon_length_for_force(const Musculotendon& m, double f) {
+  const double lTs = m.params.tendon_slack_length_m;
+  if (m.params.model == MuscleModel::degroote2016) {
+    return lTs * degroote_norm_tendon_length(m.params.degroote, f);
+  }
+  if (f <= 0.0) return lTs;
+  if (m.params.model == MuscleModel::millard2012) {
+    return lTs * m.millard.tendon_force_length.calc_inverse(f);
+  }
+  // Thelen: invert the toe exponential or the linear part in closed form.
+  const auto& p = m.params.thelen;
+  const double etoe = thelen_tendon_toe_strain(p.FmaxTendonStrain);
+  const double klin = thelen_tendon_linear_stiffness(p.FmaxTendonStrain);
+  if (f >= 0.33) return lTs * (1.0 + etoe + (f - 0.33) / klin);
+  const double c = 0.33 / std::expm1(3.0);
+  return lTs * (1.0 + etoe / 3.0 * std::log1p(f / c));
+}
+
+double calc_norm_fiber_velocity(const Musculotendon& m, double a, double l, double force) {
+  a = std::clamp(a, m.minimum_activation, 1.0);
+  const double fal = calc_active_force_length(m, l).value;
+  const double fpe = calc_passive_force_length(m, l).value;
+  const double beta = m.fiber_damping;
+  if (m.params.model == MuscleModel::thelen2003) {
+    return thelen_norm_fiber_velocity(m.params.thelen, a, fal, force - fpe);
+  }
+  if (beta == 0.0 && a * fal > 0.0) {
+    const double fv = (force - fpe) / (a * fal);
+    if (m.params.model == MuscleModel::degroote2016) {
+      return std::clamp(degroote_force_velocity_inverse(fv), -5.0, 5.0);
+    }
+    return m.millard.force_velocity.calc_inverse(fv);
+  }
+  // g(v) = a fal fv(v) + fpe + β v − force is increasing; bracket, then safeguarded Newton.
+  const auto g = [&](double v) {
+    const CurvePoint fv = calc_force_velocity(m, a, v);
+    return CurvePoint{a * fal * fv.value + fpe + beta * v - force, a * fal * fv.derivative + beta};
+  };
+  double lo = -1.0, hi = 1.0;
+  while (g(lo).value > 0.0 && lo > -5.0) lo *= 2.0;
+  while (g(hi).value < 0.0 && hi < 5.0) hi *= 2.0;
+  if (g(lo).value > 0.0) return lo;
+  if (g(hi).value < 0.0) return hi;
+  double v = 0.0;
+  for (int it = 0; it < 100; ++it) {
+    const CurvePoint r = g(v);
+    if (std::abs(r.value) < 1e-14) break;
+    if (r.value < 0.0) lo = v; else hi = v;
+    double next = r.derivative > 0.0 ? v - r.value / r.derivative : 0.5 * (lo + hi);
+    if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+    if (hi - lo < 1e-15) break;
+    v = next;
+  }
+  return v;
+}
+
+namespace {
+struct Geometry {
+  double lM, cos_phi, sin_phi, lT;
+};
+Geometry fiber_geometry(const Musculotendon& m, double lM, double lMT) {
+  const double s = m.parallelogram_height_m / lM;
+  const double c = std::sqrt(std::max(0.0, 1.0 - s * s));
+  return {lM, c, s, lMT - lM * c};
+}
+
+// Fills the outputs for a fully known kinematic state. tendon_force_N < 0 means "from the curve".
+void fill_outputs(const Musculotendon& m, double a, const Geometry& g, double vM, double lMT,
+                  double vMT, bool rigid, MuscleOutputs& o) {
+  const auto& p = m.params;
+  const double F0 = p.max_isometric_force_N, l0 = p.optimal_fiber_length_m;
+  o.activation = a;
+  o.musculotendon_length_m = lMT;
+  o.musculotendon_velocity_m_per_s = vMT;
+  o.fiber_length_m = g.lM;
+  o.norm_fiber_length = g.lM / l0;
+  o.fiber_velocity_m_per_s = vM;
+  o.norm_fiber_velocity = vM / (l0 * p.max_contraction_velocity);
+  o.pennation_rad = std::asin(std::min(1.0, g.sin_phi));
+  o.tendon_length_m = g.lT;
+  o.tendon_strain = g.lT / p.tendon_slack_length_m - 1.0;
+  o.tendon_velocity_m_per_s = vMT - vM / g.cos_phi;
+  o.active_force_length_multiplier = calc_active_force_length(m, o.norm_fiber_length).value;
+  o.passive_force_multiplier = calc_passive_force_length(m, o.norm_fiber_length).value;
+  o.force_velocity_multiplier = calc_force_velocity(m, a, o.norm_fiber_velocity).value;
+  o.active_fiber_force_N = F0 * a * o.active_force_length_multiplier * o.force_velocity_multiplier;
+  o.passive_fiber_force_N = F0 * o.passive_force_multiplier;
+  o.damping_fiber_force_N = F0 * m.fiber_damping * o.norm_fiber_velocity;
+  o.fiber_force_N = o.active_fiber_force_N + o.passive_fiber_force_N + o.damping_fiber_force_N;
+  o.fiber_force_along_tendon_N = o.fiber_force_N * g.cos_phi;
+  if (rigid) {
+    o.tendon_force_N = o.fiber_force_along_tendon_N;
+    o.tendon_velocity_m_per_s = 0.0;
+  } else {
+    o.tendon_force_N = F0 * calc_tendon_force_length(m, g.lT / p.tendon_slack_length_m).value;
+  }
+  o.norm_tendon_force = o.tendon_force_N / F0;
+  o.fiber_active_power_W = -o.active_fiber_force_N * vM;
+  o.fiber_passive_energy_J = calc_passive_energy_J(m, g.lM);
+  o.tendon_energy_J = rigid ? 0.0 : calc_tendon_energy_J(m, g.lT);
+}
+
+void require_finite_input(const Musculotendon& m, double a, double lMT, double vMT) {
+  if (!std::isfinite(a) || a < 0.0 || a > 1.0) {
+    throw_bad_input("muscle '" + m.params.name + "': activation " + std::to_string(a) +
+                        " is outside [0, 1]",
+                    {.object = m.params.name});
+  }
+  if (!std::isfinite(lMT) || lMT <= 0.0 || !std::isfinite(vMT)) {
+    throw_bad_input("muscle '" + m.params.name + "': musculotendon length " +
+                        std::to_string(lMT) + " m / speed " + std::to_string(vMT) +
+                        " m/s is not a finite positive length",
+                    {.object = m.params.name});
+  }
+}
+
+MuscleOutputs rigid_outputs(const Musculotendon& m, double a, double lMT, double vMT) {
+  MuscleOutputs o;
+  const double h = m.parallelogram_height_m;
+  const double lMAT = lMT - m.params.tendon_slack_length_m;
+  double lM = std::sqrt(std::max(0.0, lMAT) * std::max(0.0, lMAT) + h * h);
+  bool clamped = false;
+  if (lM <= m.min_fiber_length_m || lMAT <= 0.0) {
+    lM = m.min_fiber_length_m;
+    clamped = true;
+  }
+  Geometry g = fiber_geometry(m, lM, lMT);
+  g.lT = m.params.tendon_slack_length_m;
+  const double vM = clamped ? 0.0 : vMT * g.cos_phi;
+  fill_outputs(m, a, g, vM, lMT, vMT, true, o);
+  o.fiber_at_lower_bound = clamped;
+  return o;
+}
+}  // namespace
+
+MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation, double lMT,
+                                      double vMT) {
+  require_finite_input(m, activation, lMT, vMT);
+  const double a = std::clamp(activation, m.minimum_activation, 1.0);
+  if (m.params.rigid_tendon) return rigid_outputs(m, a, lMT, vMT);
+
+  const auto& p = m.params;
+  const double F0 = p.max_isometric_force_N, l0 = p.optimal_fiber_length_m;
+  const double lTs = p.tendon_slack_length_m, h = m.parallelogram_height_m;
+  const double beta = m.fiber_damping;
+  const bool moving = std::abs(vMT) > 1e-14;
+  const double vscale = l0 * p.max_contraction_velocity;
+
+  // Normalised force error r = FmAT/F0 − FT/F0 and dr/dlM at fixed normalised fibre velocity vN.
+  struct Eval {
+    double r, dr, dFmAT_dlM, dFt_dlT, cos_phi, lT;
+  };
+  const auto evaluate = [&](double lM, double vN) {
+    const Geometry g = fiber_geometry(m, lM, lMT);
+    const double l = lM / l0;
+    const CurvePoint fal = calc_active_force_length(m, l);
+    const CurvePoint fpe = calc_passive_force_length(m, l);
+    const CurvePoint ft = calc_tendon_force_length(m, g.lT / lTs);
+    const double fv = calc_force_velocity(m, a, vN).value;
+    const double fm = a * fal.value * fv + fpe.value + beta * vN;
+    const double dfm = (a * fv * fal.derivative + fpe.derivative) / l0;
+    const double dcos = (g.cos_phi > 0.0) ? h * h / (lM * lM * lM * g.cos_phi) : 0.0;
+    const double dFmAT = dfm * g.cos_phi + fm * dcos;
+    const double dFt_dlT = ft.derivative / lTs;
+    return Eval{fm * g.cos_phi - ft.value, dFmAT + dFt_dlT / g.cos_phi, dFmAT, dFt_dlT, g.cos_phi,
+                g.lT};
+  };
+
+  // Bracket: [minimum fibre length, fibre length at which the tendon is exactly slack].
+  const double lo0 = m.min_fiber_length_m;
+  const Geometry glo = fiber_geometry(m, lo0, lMT);
+  MuscleOutputs o;
+  if (glo.lT <= lTs) {
+    // The path is too short even for the shortest fibre: slack tendon, fibre at its lower bound.
+    fill_outputs(m, a, glo, 0.0, lMT, vMT, false, o);
+    o.fiber_at_lower_bound = true;
+    return o;
+  }
+  const double lMAT_slack = lMT - lTs;
+  const double hi0 = std::sqrt(lMAT_slack * lMAT_slack + h * h);
+
+  double vN = 0.0, lM = std::numeric_limits<double>::quiet_NaN();
+  int total_iterations = 0;
+  for (int outer = 0; outer < 60; ++outer) {
+    double lo = lo0, hi = hi0;
+    const Eval elo = evaluate(lo, vN);
+    if (elo.r >= 0.0) {  // fibre force beats the tendon even at the lower bound
+      lM = lo;
+      o.fiber_at_lower_bound = true;
+      break;
+    }
+    const Eval ehi = evaluate(hi, vN);
+    if (ehi.r <= 0.0) {
+      lM = hi;
+    } else {
+      // OpenSim's starting point: tendon at 1.01 lTs.
+      const double lMAT0 = lMT - 1.01 * lTs;
+      double x = std::sqrt(std::max(0.0, lMAT0) * std::max(0.0, lMAT0) + h * h);
+      if (!(x > lo && x < hi)) x = 0.5 * (lo + hi);
+      bool converged = false;
+      for (int it = 0; it < 200; ++it, ++total_iterations) {
+        const Eval e = evaluate(x, vN);
+        if (!std::isfinite(e.r)) fail_numerical(m, "non-finite force error in equilibrium");
+        if (std::abs(e.r) <= 1e-13) { converged = true; break; }
+        if (e.r < 0.0) lo = x; else hi = x;
+        if (hi - lo <= 1e-15 * hi) { converged = true; break; }
+        double next = (e.dr > 0.0 && std::isfinite(e.dr)) ? x - e.r / e.dr : 0.5 * (lo + hi);
+        if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+        x = next;
+      }
+      if (!converged) fail_numerical(m, "static equilibrium did not converge in 200 iterations");
+      lM = x;
+    }
+    if (!moving) break;
+    // Velocity estimate for the next pass.
+    const Eval e = evaluate(lM, vN);
+    double vT = 0.0;
+    if (p.model != MuscleModel::degroote2016) {
+      const double kM = e.dFmAT_dlM * e.cos_phi * F0;  // along-tendon fibre stiffness
+      const double kT = e.dFt_dlT * F0;
+      vT = (std::abs(kM + kT) > 1e-12 && e.lT > lTs) ? kM / (kM + kT) * vMT : vMT;
+    }
+    const double vN_new = (vMT - vT) * e.cos_phi / vscale;
+    const bool done = std::abs(vN_new - vN) < 1e-13;
+    vN = vN_new;
+    if (done) break;
+  }
+  if (!std::isfinite(lM)) fail_numerical(m, "static equilibrium produced a non-finite fibre length");
+  const Geometry g = fiber_geometry(m, lM, lMT);
+  double vM = vN * vscale;
+  if (o.fiber_at_lower_bound && vM < 0.0) vM = 0.0;
+  const bool clamped = o.fiber_at_lower_bound;
+  fill_outputs(m, a, g, vM, lMT, vMT, false, o);
+  o.fiber_at_lower_bound = clamped;
+  o.iterations = total_iterations;
+  return o;
+}
+
+double calc_activation_rate(const Musculotendon& m, double a, double u) {
+  ActivationParameters ap{m.params.activation_time_constant_s, m.params.deactivation_time_constant_s,
+                          m.minimum_activation, m.params.degroote.activation_dynamics_smoothing};
+  if (m.params.model == MuscleModel::degroote2016) return calc_activation_rate_degroote(ap, a, u);
+  return calc_activation_rate_opensim(ap, a, u);
+}
+
+MuscleState calc_equilibrium_state(const Musculotendon& m, double a, double lMT, double vMT) {
+  const MuscleOutputs o = calc_static_equilibrium(m, a, lMT, vMT);
+  return {std::clamp(a, m.minimum_activation, 1.0), o.fiber_length_m, o.norm_tendon_force};
+}
+
+MuscleStateRate calc_state_rate(const Musculotendon& m, const MuscleState& s, double u,
+                                double lMT, double vMT, MuscleOutputs* out) {
+  require_finite_input(m, std::clamp(s.activation, 0.0, 1.0), lMT, vMT);
+  MuscleStateRate rate;
+  rate.activation = calc_activation_rate(m, s.activation, u);
+  const double a = std::clamp(s.activation, m.minimum_activation, 1.0);
+  MuscleOutputs o;
+  if (m.params.rigid_tendon) {
+    o = rigid_outputs(m, a, lMT, vMT);
+    if (out) *out = o;
+    return rate;
+  }
+  const auto& p = m.params;
+  const double l0 = p.optimal_fiber_length_m, lTs = p.tendon_slack_length_m;
+  const double vscale = l0 * p.max_contraction_velocity;
+  const double h = m.parallelogram_height_m;
+  if (p.model == MuscleModel::degroote2016) {
+    const double lT = lTs * degroote_norm_tendon_length(p.degroote, s.norm_tendon_force);
+    const double lMAT = lMT - lT;
+    double lM = std::sqrt(std::max(0.0, lMAT) * std::max(0.0, lMAT) + h * h);
+    const bool clamped = lM < m.min_fiber_length_m;
+    lM = std::max(lM, m.min_fiber_length_m);
+    Geometry g = fiber_geometry(m, lM, lMT);
+    g.lT = lT;
+    double vN = calc_norm_fiber_velocity(m, a, lM / l0, s.norm_tendon_force / g.cos_phi);
+    if (clamped && vN < 0.0) vN = 0.0;
+    const double vM = vN * vscale;
+    fill_outputs(m, a, g, vM, lMT, vMT, false, o);
+    o.fiber_at_lower_bound = clamped;
+    const double vT = vMT - vM / g.cos_phi;
+    rate.norm_tendon_force = degroote_tendon_force_length(p.degroote, lT / lTs).derivative * vT / lTs;
+    if (!std::isfinite(rate.norm_tendon_force)) fail_numerical(m, "non-finite tendon-force rate");
+  } else {
+    const bool clamped = s.fiber_length_m <= m.min_fiber_length_m;
+    const double lM = std::max(s.fiber_length_m, m.min_fiber_length_m);
+    const Geometry g = fiber_geometry(m, lM, lMT);
+    const double ft = calc_tendon_force_length(m, g.lT / lTs).value;
+    double vN = calc_norm_fiber_velocity(m, a, lM / l0, ft / g.cos_phi);
+    if (clamped && vN < 0.0) vN = 0.0;
+    const double vM = vN * vscale;
+    fill_outputs(m, a, g, vM, lMT, vMT, false, o);
+    o.fiber_at_lower_bound = clamped;
+    rate.fiber_length = vM;
+    if (!std::isfinite(vM)) fail_numerical(m, "non-finite fibre velocity");
+  }
+  if (out) *out = o;
+  return rate;
+}
+
+}  // namespace fascicle
