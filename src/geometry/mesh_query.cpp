@@ -140,7 +140,14 @@ std::optional<RayHit> intersect_ray_triangle(const Vec3& origin, const Vec3& dir
 struct MeshQuery::Bvh {
   RTCDevice device = nullptr;
   RTCScene scene = nullptr;
-  std::vector<double> corners;  // 9 doubles per triangle (a, b, c), packed for cache locality
+  // Triangles are stored in Morton order of their centroids ("slots"), so that triangles near in
+  // space are near in memory: queries touch a few cache lines instead of scattered records.
+  // Per slot, kStride doubles: the centre and radius of a bounding sphere (a cheap lower bound on
+  // the distance, to skip exact tests), then corners a, b, c.
+  static constexpr std::size_t kStride = 16;
+  std::vector<double> corners;
+  std::vector<int> triangle_of;  // slot -> row of F
+  std::vector<int> slot_of;      // row of F -> slot
   double pad = 0.0;
 
   Bvh() = default;
@@ -151,8 +158,14 @@ struct MeshQuery::Bvh {
     if (device != nullptr) rtcReleaseDevice(device);
   }
   Vec3 corner(unsigned tri, int k) const {
-    const double* c = corners.data() + 9 * static_cast<std::size_t>(tri) + 3 * k;
+    const double* c = corners.data() + kStride * static_cast<std::size_t>(tri) + 4 + 3 * k;
     return {c[0], c[1], c[2]};
+  }
+  // Lower bound on the squared distance from p to triangle `tri` (0 inside its bounding sphere).
+  double lower_bound_d2(unsigned tri, const Vec3& p) const {
+    const double* c = corners.data() + kStride * static_cast<std::size_t>(tri);
+    const double d = (p - Vec3(c[0], c[1], c[2])).norm() - c[3];
+    return d > 0.0 ? d * d : 0.0;
   }
 };
 
@@ -173,7 +186,8 @@ float round_up(double x) {
 // Padded, outward-rounded float box of one double triangle.
 void bounds_callback(const RTCBoundsFunctionArguments* args) {
   const auto* bvh = static_cast<const MeshQuery::Bvh*>(args->geometryUserPtr);
-  const double* c = bvh->corners.data() + 9 * static_cast<std::size_t>(args->primID);
+  const double* c =
+      bvh->corners.data() + MeshQuery::Bvh::kStride * static_cast<std::size_t>(args->primID) + 4;
   double lo[3], hi[3];
   for (int k = 0; k < 3; ++k) {
     lo[k] = std::min({c[k], c[3 + k], c[6 + k]}) - bvh->pad;
@@ -193,7 +207,7 @@ struct PointQueryState {
   const MeshQuery::Bvh* bvh;
   Vec3 p;
   double best_d2;
-  int best_triangle;
+  int best_slot;
   TrianglePoint best;
   double radius_pad;  // absolute padding for the float rounding of the query point
 };
@@ -207,13 +221,18 @@ float padded_radius(double d, double radius_pad) {
 bool point_query_callback(RTCPointQueryFunctionArguments* args) {
   auto* q = static_cast<PointQueryState*>(args->userPtr);
   const unsigned t = args->primID;
+  // Farther than the best so far even at its bounding sphere (with a margin for the rounding of
+  // the bound): cannot win, nor tie.
+  if (q->bvh->lower_bound_d2(t, q->p) > q->best_d2 * (1.0 + 1e-12)) return false;
   const TrianglePoint tp =
       closest_point_on_triangle(q->p, q->bvh->corner(t, 0), q->bvh->corner(t, 1), q->bvh->corner(t, 2));
   const double d2 = (q->p - tp.point).squaredNorm();
   // Ties go to the lower triangle index, so the answer does not depend on traversal order.
-  if (d2 < q->best_d2 || (d2 == q->best_d2 && static_cast<int>(t) < q->best_triangle)) {
+  if (d2 < q->best_d2 ||
+      (d2 == q->best_d2 &&
+       (q->best_slot < 0 || q->bvh->triangle_of[t] < q->bvh->triangle_of[q->best_slot]))) {
     q->best_d2 = d2;
-    q->best_triangle = static_cast<int>(t);
+    q->best_slot = static_cast<int>(t);
     q->best = tp;
     args->query->radius = padded_radius(std::sqrt(d2), q->radius_pad);
     return true;
@@ -252,7 +271,7 @@ void intersect_callback(const RTCIntersectFunctionNArguments* args) {
     return;
   }
   if (!hit) return;
-  hit->triangle = static_cast<int>(t);
+  hit->triangle = r->bvh->triangle_of[t];
   if (r->mode == RayMode::all) {
     r->all->push_back(*hit);
     return;
@@ -380,11 +399,29 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
                     {.suggestion = "repair the mesh (fascicle mesh repair) before querying it"});
   }
   Bvh& bvh = *bvh_;
-  bvh.corners.resize(9 * static_cast<std::size_t>(nf));
+  Points3 centroids(nf, 3);
   for (Eigen::Index f = 0; f < nf; ++f) {
+    centroids.row(f) = (mesh_.V.row(mesh_.F(f, 0)) + mesh_.V.row(mesh_.F(f, 1)) + mesh_.V.row(mesh_.F(f, 2))) / 3.0;
+  }
+  const std::vector<Eigen::Index> order = spatial_order(centroids);
+  bvh.triangle_of.resize(static_cast<std::size_t>(nf));
+  bvh.slot_of.resize(static_cast<std::size_t>(nf));
+  bvh.corners.assign(Bvh::kStride * static_cast<std::size_t>(nf), 0.0);
+  for (std::size_t slot = 0; slot < order.size(); ++slot) {
+    const Eigen::Index f = order[slot];
+    bvh.triangle_of[slot] = static_cast<int>(f);
+    bvh.slot_of[static_cast<std::size_t>(f)] = static_cast<int>(slot);
+    double* c = bvh.corners.data() + Bvh::kStride * slot;
     for (int k = 0; k < 3; ++k) {
-      for (int j = 0; j < 3; ++j) bvh.corners[9 * f + 3 * k + j] = mesh_.V(mesh_.F(f, k), j);
+      for (int j = 0; j < 3; ++j) c[4 + 3 * k + j] = mesh_.V(mesh_.F(f, k), j);
     }
+    const Vec3 centre = centroids.row(f).transpose();
+    double r = 0.0;
+    for (int k = 0; k < 3; ++k) r = std::max(r, (mesh_.V.row(mesh_.F(f, k)).transpose() - centre).norm());
+    c[0] = centre.x();
+    c[1] = centre.y();
+    c[2] = centre.z();
+    c[3] = r * (1.0 + 1e-12) + 1e-300;  // rounded up: the bound stays a bound after rounding
   }
   const Vec3 lo = mesh_.V.colwise().minCoeff().transpose();
   const Vec3 hi = mesh_.V.colwise().maxCoeff().transpose();
@@ -422,18 +459,18 @@ ClosestPoint MeshQuery::closest_with_hint(const Vec3& p, int hint_triangle,
   q.bvh = bvh_.get();
   q.p = p;
   q.best_d2 = max_distance * max_distance;
-  q.best_triangle = std::numeric_limits<int>::max();
+  q.best_slot = -1;
   // The float query point is off by half an ulp per axis; cover it (and float arithmetic in the
   // box distance) with a few ulps of its largest coordinate.
   q.radius_pad = bvh_->pad + std::ldexp(p.cwiseAbs().maxCoeff(), -20);
   if (hint_triangle >= 0) {
-    const auto t = static_cast<unsigned>(hint_triangle);
+    const auto t = static_cast<unsigned>(bvh_->slot_of[static_cast<std::size_t>(hint_triangle)]);
     const TrianglePoint tp =
         closest_point_on_triangle(p, bvh_->corner(t, 0), bvh_->corner(t, 1), bvh_->corner(t, 2));
     const double d2 = (p - tp.point).squaredNorm();
     if (d2 <= q.best_d2) {
       q.best_d2 = d2;
-      q.best_triangle = hint_triangle;
+      q.best_slot = static_cast<int>(t);
       q.best = tp;
     }
   }
@@ -448,9 +485,9 @@ ClosestPoint MeshQuery::closest_with_hint(const Vec3& p, int hint_triangle,
   rtcPointQuery(bvh_->scene, &query, &context, point_query_callback, &q);
 
   ClosestPoint out;
-  if (q.best_triangle == std::numeric_limits<int>::max()) return out;
+  if (q.best_slot < 0) return out;
   out.point = q.best.point;
-  out.triangle = q.best_triangle;
+  out.triangle = bvh_->triangle_of[static_cast<std::size_t>(q.best_slot)];
   out.barycentric = q.best.barycentric;
   out.distance = std::sqrt(q.best_d2);
   return out;

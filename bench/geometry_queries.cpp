@@ -1,0 +1,129 @@
+// Spatial queries on the Visible Human Female right tibia (binary STL in mm, ~60k triangles), one
+// core: closest point, inside test, signed distance, ray casts and BVH build.
+// Query points: uniform in the mesh's bounding box enlarged by 10% (fixed seed).
+// Run: build/bin/bench_geometry_queries   (FASCICLE_DATA_DIR overrides the data folder)
+#include "fascicle/core/parallel.hpp"
+#include "fascicle/geometry/mesh_query.hpp"
+#include "fascicle/io/mesh_io.hpp"
+
+#include <benchmark/benchmark.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <random>
+
+namespace {
+
+using namespace fascicle;
+
+std::filesystem::path data_dir() {
+  if (const char* env = std::getenv("FASCICLE_DATA_DIR"); env != nullptr && *env != '\0') return env;
+  return FASCICLE_DEFAULT_DATA_DIR;
+}
+
+const TriMesh& tibia() {
+  static const TriMesh mesh = read_mesh(
+      data_dir() / "visible_human_female/right/VHF_Right_Bone_Tibia_smooth.stl", LengthUnit::millimetre);
+  return mesh;
+}
+
+const MeshQuery& tibia_query() {
+  static const MeshQuery query(tibia());
+  return query;
+}
+
+// n points uniform in the bounding box enlarged by 10% (half extents x 1.1).
+Points3 box_points(const TriMesh& m, Eigen::Index n, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  const Vec3 lo = m.V.colwise().minCoeff().transpose(), hi = m.V.colwise().maxCoeff().transpose();
+  const Vec3 c = 0.5 * (lo + hi), h = 0.55 * (hi - lo);
+  Points3 P(n, 3);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    for (int k = 0; k < 3; ++k) P(i, k) = c[k] + u(rng) * h[k];
+  }
+  return P;
+}
+
+void BM_Build(benchmark::State& state) {
+  const ThreadLimit one(1);
+  for (auto _ : state) {
+    MeshQuery q(tibia());
+    benchmark::DoNotOptimize(q);
+  }
+  state.counters["triangles"] = static_cast<double>(tibia().F.rows());
+}
+BENCHMARK(BM_Build)->Unit(benchmark::kMillisecond);
+
+// Independent single queries in random order (no coherence between consecutive points).
+void BM_ClosestPointSingle(benchmark::State& state) {
+  const MeshQuery& q = tibia_query();
+  const Points3 P = box_points(tibia(), 100000, 1);
+  Eigen::Index i = 0;
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(q.calc_closest_point(P.row(i).transpose()));
+    if (++i == P.rows()) i = 0;
+  }
+  state.SetItemsProcessed(state.iterations());
+}
+BENCHMARK(BM_ClosestPointSingle);
+
+// The batched API on one thread: Morton-ordered blocks, each query hinted by the previous one.
+void BM_ClosestPointBatch(benchmark::State& state) {
+  const ThreadLimit one(1);
+  const MeshQuery& q = tibia_query();
+  const Points3 P = box_points(tibia(), state.range(0), 2);
+  for (auto _ : state) benchmark::DoNotOptimize(q.calc_closest_points(P));
+  state.SetItemsProcessed(state.iterations() * P.rows());
+}
+BENCHMARK(BM_ClosestPointBatch)->Arg(10000)->Arg(1000000)->Unit(benchmark::kMillisecond);
+
+void BM_InsideSingle(benchmark::State& state) {
+  const MeshQuery& q = tibia_query();
+  const Points3 P = box_points(tibia(), 100000, 3);
+  Eigen::Index i = 0;
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(q.calc_is_inside(Vec3(P.row(i).transpose())));
+    if (++i == P.rows()) i = 0;
+  }
+  state.SetItemsProcessed(state.iterations());
+}
+BENCHMARK(BM_InsideSingle);
+
+void BM_InsideBatch(benchmark::State& state) {
+  const ThreadLimit one(1);
+  const MeshQuery& q = tibia_query();
+  const Points3 P = box_points(tibia(), 100000, 4);
+  for (auto _ : state) benchmark::DoNotOptimize(q.calc_is_inside(P));
+  state.SetItemsProcessed(state.iterations() * P.rows());
+}
+BENCHMARK(BM_InsideBatch)->Unit(benchmark::kMillisecond);
+
+void BM_SignedDistanceBatch(benchmark::State& state) {
+  const ThreadLimit one(1);
+  const MeshQuery& q = tibia_query();
+  const Points3 P = box_points(tibia(), 100000, 5);
+  for (auto _ : state) benchmark::DoNotOptimize(q.calc_signed_distances(P));
+  state.SetItemsProcessed(state.iterations() * P.rows());
+}
+BENCHMARK(BM_SignedDistanceBatch)->Unit(benchmark::kMillisecond);
+
+void BM_RayFirstHit(benchmark::State& state) {
+  const MeshQuery& q = tibia_query();
+  const Points3 P = box_points(tibia(), 100000, 6);
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> g(0.0, 1.0);
+  Points3 D(P.rows(), 3);
+  for (Eigen::Index i = 0; i < D.rows(); ++i) D.row(i) = Eigen::RowVector3d(g(rng), g(rng), g(rng));
+  Eigen::Index i = 0;
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(q.cast_ray(P.row(i).transpose(), D.row(i).transpose()));
+    if (++i == P.rows()) i = 0;
+  }
+  state.SetItemsProcessed(state.iterations());
+}
+BENCHMARK(BM_RayFirstHit);
+
+}  // namespace
+
+BENCHMARK_MAIN();
