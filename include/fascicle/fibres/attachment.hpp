@@ -1,0 +1,73 @@
+// Attachment areas: the parts of a muscle's surface where its fibres start (origin) and end
+// (insertion). Areas are vertex sets of the muscle's TriMesh; their triangles are the faces whose
+// three vertices all belong to the set. See docs/fibres.md.
+#pragma once
+
+#include "fascicle/geometry/tri_mesh.hpp"
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace fascicle {
+
+struct AttachmentArea {
+  std::string name;              // "origin", "insertion" (used in messages)
+  std::vector<int> vertices;     // sorted vertex indices of the muscle mesh
+  std::vector<int> triangles;    // faces with all three vertices in `vertices`
+  double area_m2 = 0.0;          // total area of `triangles`
+  Vec3 centroid = Vec3::Zero();  // area-weighted centroid of `triangles` (vertex mean if none)
+  Vec3 normal = Vec3::Zero();    // unit area-weighted mean outward normal (zero if none)
+};
+
+// The pair of areas used for a decomposition.
+struct Attachments {
+  AttachmentArea origin;
+  AttachmentArea insertion;
+};
+
+// Builds an area from vertex indices (duplicates removed). Throws bad_input when the set is empty
+// or an index is out of range (naming the area).
+AttachmentArea make_attachment_area(const TriMesh& muscle, std::vector<int> vertices,
+                                    const std::string& name);
+
+// Checks a pair of areas: both non-empty with at least one triangle each, and disjoint (throws
+// bad_input naming the shared vertex count otherwise).
+void check_attachments(const TriMesh& muscle, const Attachments& areas);
+
+// The muscle's principal axis (unit, largest variance of the vertices, area-weighted), oriented so
+// the origin end is towards +z of the mesh frame (proximal in the z-up Visible Human and MRI
+// frames) unless `origin_towards` is given.
+Vec3 calc_principal_axis(const TriMesh& muscle, const Vec3& origin_towards = Vec3::UnitZ());
+
+// The two end regions along the principal axis: vertices whose position along the axis is within
+// `fraction` (0 < fraction < 0.5) of the muscle's extent from each end. For bellies without
+// tendons (Visible Human). Origin is the end towards `origin_towards`.
+Attachments find_end_attachments(const TriMesh& muscle, double fraction = 0.08,
+                                 const Vec3& origin_towards = Vec3::UnitZ());
+
+// Areas from landmark point clouds (metres): each landmark is projected onto the muscle surface;
+// the area is the vertices within `radius` of a projected landmark (radius <= 0: 1.5 times the
+// median nearest-neighbour spacing of the landmarks, at least the mean edge length).
+// Throws bad_input when a landmark lies farther than `max_offset` from the surface (landmarks of
+// another muscle) or the areas overlap.
+Attachments find_landmark_attachments(const TriMesh& muscle, const Points3& origin_landmarks,
+                                      const Points3& insertion_landmarks, double radius = 0.0,
+                                      double max_offset = 0.01);
+
+// Areas from bones: the muscle vertices within `distance` of any bone surface.
+// With `split_by_bone` the origin is the contact with bones[0] and the insertion the contact with
+// the other bones; otherwise the contact region is split at the middle of the principal axis, and
+// a side without contact falls back to its end region (find_end_attachments with `end_fraction`).
+// Throws bad_input when no muscle vertex lies within `distance` of any bone.
+Attachments find_bone_attachments(const TriMesh& muscle, const std::vector<TriMesh>& bones,
+                                  double distance, bool split_by_bone = false,
+                                  double end_fraction = 0.08,
+                                  const Vec3& origin_towards = Vec3::UnitZ());
+
+// Reads landmarks from CSV: one point per row, three numeric columns x,y,z (an optional header
+// row and extra columns are ignored; '#' starts a comment), scaled by `metres_per_unit`.
+// Throws bad_input naming the file and line on malformed rows or when there is no point.
+Points3 read_landmarks_csv(const std::filesystem::path& path, double metres_per_unit = 1.0);
+
+}  // namespace fascicle

@@ -1,0 +1,39 @@
+// One-call muscle fibre decomposition: template method with fallback to the harmonic method.
+#pragma once
+
+#include "fascicle/fibres/attachment.hpp"
+#include "fascicle/fibres/fibre_set.hpp"
+#include "fascicle/fibres/harmonic.hpp"
+#include "fascicle/fibres/template_mapping.hpp"
+
+#include <string>
+#include <vector>
+
+namespace fascicle {
+
+enum class FibreMethod { template_map, harmonic };
+FibreMethod parse_fibre_method(std::string_view name);  // "template" | "harmonic"
+std::string to_string(FibreMethod m);
+
+struct DecomposeOptions {
+  FibreMethod method = FibreMethod::template_map;
+  FibreTemplate fibre_template = FibreTemplate::parallel;
+  int count = 100;
+  int resolution = 15;
+  TemplateMapOptions mapping;
+  HarmonicOptions harmonic;
+};
+
+struct Decomposition {
+  FibreSet fibres;
+  FibreMethod method_used = FibreMethod::template_map;
+  std::vector<std::string> warnings;  // e.g. slices with several contours and the fallback
+};
+
+// Decomposes `muscle` into fibres. With the template method, a shape the template cannot take
+// (slices with several contours) logs a warning naming the slice positions and falls back to the
+// harmonic method.
+Decomposition decompose_muscle(const TriMesh& muscle, const Attachments& areas,
+                               const DecomposeOptions& options);
+
+}  // namespace fascicle

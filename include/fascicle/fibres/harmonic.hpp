@@ -1,0 +1,57 @@
+// Harmonic fibre fields (Choi & Blemker 2013, PLoS ONE 8(10):e77576; Modenese & Kohout 2020,
+// Ann Biomed Eng 48:1793-1804): the potential u solving Laplace's equation in the muscle volume,
+// u = 0 on the origin area, u = 1 on the insertion area, zero flux elsewhere; fibres are the
+// streamlines of grad u, from the origin area to the insertion area.
+#pragma once
+
+#include "fascicle/fibres/attachment.hpp"
+#include "fascicle/fibres/fibre_set.hpp"
+#include "fascicle/fibres/tet_mesh.hpp"
+
+#include <Eigen/SparseCore>
+
+#include <vector>
+
+namespace fascicle {
+
+// Linear-FEM (cotangent) stiffness of a tet mesh, #V x #V, symmetric positive semi-definite,
+// rows summing to 0: K_ij = sum over tets of vol * grad(phi_i) . grad(phi_j).
+Eigen::SparseMatrix<double> calc_stiffness_matrix(const TetMesh& mesh);
+
+// Solves K u = 0 with u = 0 on `zero_vertices` and u = 1 on `one_vertices` by sparse Cholesky
+// (CHOLMOD) on the free vertices. Throws bad_input when a set is empty and numerical when the
+// factorisation fails (a part of the mesh without any Dirichlet vertex).
+VecX solve_laplace(const TetMesh& mesh, const std::vector<int>& zero_vertices,
+                   const std::vector<int>& one_vertices);
+
+// A solved field, immutable, reusable for any number of fibre tracings.
+struct HarmonicField {
+  TriMesh surface;         // the muscle surface (its vertices are the first tet vertices)
+  TetMesh tets;
+  VecX u;                  // #V potential
+  Points3 vertex_gradient;  // #V x 3 volume-weighted mean of the adjacent tets' gradients (1/m)
+  Points3 tet_gradient;     // #T x 3 (1/m)
+};
+
+struct HarmonicOptions {
+  TetOptions tets;
+};
+
+// Tetrahedralises `muscle` and solves the field for the given attachment areas.
+HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& areas,
+                                  const HarmonicOptions& options = {});
+
+struct TraceOptions {
+  int count = 100;        // fibres
+  int resolution = 15;    // points per fibre
+  double step_scale = 0.5;  // RK4 step as a fraction of the mean tet edge length
+};
+
+// Traces `count` fibres: seeds spread over the origin area's triangles (area-weighted R2
+// sequence), streamlines of the interpolated gradient by RK4 with tet walking until u reaches 1 or
+// the boundary, resampled to `resolution` points. Every point lies in the tet mesh (inside the
+// surface). Fibres are traced in parallel; results are deterministic.
+FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea& origin,
+                               const TraceOptions& options = {});
+
+}  // namespace fascicle

@@ -1,0 +1,74 @@
+// Template method of fibre decomposition (Kohout et al.; seed 002 section 3): a unit-cube fibre
+// template is placed in an oriented box aligned with the attachment areas, cube and muscle are cut
+// by the same planes, and each template slice (the unit square) is mapped onto the muscle's
+// contour in that plane with mean value coordinates (Floater 2003, CAGD 20(1):19-27). Fibres of
+// end-to-end templates are then re-routed so their ends spread over the whole attachment areas,
+// smoothed, and pulled inside the surface where the map left them outside.
+#pragma once
+
+#include "fascicle/fibres/attachment.hpp"
+#include "fascicle/fibres/fibre_set.hpp"
+
+#include <memory>
+#include <vector>
+
+namespace fascicle {
+
+class MeshQuery;
+
+struct TemplateMapOptions {
+  int num_slices = 48;       // planes cutting the muscle between the attachment levels
+  int contour_samples = 64;  // points per slice contour (and per unit-square boundary)
+  double end_margin = 0.02;  // fraction of the axial extent kept clear of the muscle's tips
+  double reroute_fraction = 0.15;  // part of each fibre end replaced by a segment to the area
+  int smoothing_iterations = 4;    // Laplacian smoothing passes (ends fixed)
+};
+
+// A slice whose plane cuts the muscle into more than one closed contour: the template cannot be
+// mapped there (the largest contour is used).
+struct SliceIssue {
+  double axial_position_m = 0.0;  // along the box's z axis from the origin level
+  Vec3 point = Vec3::Zero();      // the slice centre in the mesh frame
+  int num_contours = 0;
+};
+
+// The reusable per-muscle set-up: box frame, slices and their resampled contours.
+class TemplateMapper {
+ public:
+  // Throws bad_input when the attachment centroids coincide or a slice misses the muscle.
+  TemplateMapper(const TriMesh& muscle, const Attachments& areas,
+                 const TemplateMapOptions& options = {});
+  ~TemplateMapper();
+  TemplateMapper(TemplateMapper&&) noexcept;
+  TemplateMapper& operator=(TemplateMapper&&) noexcept;
+
+  // The box frame: columns x (thickness), y (width), z (origin -> insertion), unit, right-handed;
+  // origin at the origin level on the muscle's axis.
+  const Transform& get_box_frame() const { return X_mesh_box_; }
+  double get_axial_length() const { return axial_length_; }
+  const std::vector<SliceIssue>& get_issues() const { return issues_; }
+  bool is_mappable() const { return issues_.empty(); }
+
+  // Maps unit-cube fibres into the muscle (metres, mesh frame), re-routing end-to-end templates'
+  // ends over the attachment areas when `reroute_ends`, then smoothing and resampling each fibre to
+  // its template resolution.
+  FibreSet calc_fibres(const FibreSet& unit_fibres, bool reroute_ends) const;
+
+ private:
+  struct Slices;
+  TemplateMapOptions options_;
+  Transform X_mesh_box_ = Transform::Identity();
+  double axial_length_ = 0.0;
+  std::vector<SliceIssue> issues_;
+  std::unique_ptr<Slices> slices_;
+  std::unique_ptr<MeshQuery> query_;
+  Attachments areas_;
+  TriMesh muscle_;
+};
+
+// Mean value coordinates of a point strictly inside a simple polygon (#N x 2, either
+// orientation): N weights summing to 1 that reproduce the point (Floater 2003, eq. 2.1).
+VecX calc_mean_value_coordinates(const Eigen::Matrix<double, Eigen::Dynamic, 2>& polygon,
+                                 const Vec2& p);
+
+}  // namespace fascicle

@@ -1,0 +1,336 @@
+// Harmonic fibre field: linear FEM Laplace solve (CHOLMOD) and RK4 streamlines with tet walking.
+#include "fascicle/fibres/harmonic.hpp"
+
+#include "fascicle/core/error.hpp"
+#include "fascicle/core/parallel.hpp"
+
+#include <Eigen/CholmodSupport>
+#include <Eigen/LU>
+#include <Eigen/SparseCore>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+
+namespace fascicle {
+
+namespace {
+
+// Gradients of the four barycentric basis functions of tet t (rows), and its volume.
+Eigen::Matrix<double, 4, 3> calc_basis_gradients(const TetMesh& m, Eigen::Index t, double& volume) {
+  const Vec3 x0 = m.V.row(m.T(t, 0));
+  Mat3 D;
+  for (int k = 0; k < 3; ++k) D.col(k) = Vec3(m.V.row(m.T(t, k + 1))) - x0;
+  volume = D.determinant() / 6.0;
+  Eigen::Matrix<double, 4, 3> G;
+  const Mat3 Dinv = D.inverse();
+  G.bottomRows<3>() = Dinv;  // row k of D^-1 is grad(phi_{k+1})
+  G.row(0) = -(Dinv.row(0) + Dinv.row(1) + Dinv.row(2));
+  return G;
+}
+
+}  // namespace
+
+Eigen::SparseMatrix<double> calc_stiffness_matrix(const TetMesh& mesh) {
+  std::vector<Eigen::Triplet<double>> trips;
+  trips.reserve(16 * mesh.num_tets());
+  for (Eigen::Index t = 0; t < mesh.num_tets(); ++t) {
+    double vol = 0.0;
+    const auto G = calc_basis_gradients(mesh, t, vol);
+    if (!(vol > 0.0)) continue;  // degenerate (sliver of zero volume): no stiffness
+    const Eigen::Matrix4d Ke = vol * G * G.transpose();
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j) trips.emplace_back(mesh.T(t, i), mesh.T(t, j), Ke(i, j));
+  }
+  Eigen::SparseMatrix<double> K(mesh.num_vertices(), mesh.num_vertices());
+  K.setFromTriplets(trips.begin(), trips.end());
+  return K;
+}
+
+VecX solve_laplace(const TetMesh& mesh, const std::vector<int>& zero_vertices,
+                   const std::vector<int>& one_vertices) {
+  if (zero_vertices.empty() || one_vertices.empty())
+    throw_bad_input("the Laplace problem needs vertices with value 0 (origin) and 1 (insertion)");
+  const Eigen::Index n = mesh.num_vertices();
+  VecX u = VecX::Zero(n);
+  std::vector<int> role(n, -1);  // -1 free, 0 / 1 fixed value
+  for (int v : zero_vertices) role.at(v) = 0;
+  for (int v : one_vertices) {
+    if (role.at(v) == 0)
+      throw_bad_input("a vertex belongs to both the origin and the insertion area",
+                      {.suggestion = "give disjoint attachment areas"});
+    role[v] = 1;
+    u(v) = 1.0;
+  }
+  std::vector<int> free_index(n, -1);
+  int nf = 0;
+  for (Eigen::Index v = 0; v < n; ++v)
+    if (role[v] < 0) free_index[v] = nf++;
+  const Eigen::SparseMatrix<double> K = calc_stiffness_matrix(mesh);
+  // Split K into the free block and the right-hand side -K_FB u_B.
+  std::vector<Eigen::Triplet<double>> trips;
+  VecX rhs = VecX::Zero(nf);
+  for (int col = 0; col < K.outerSize(); ++col)
+    for (Eigen::SparseMatrix<double>::InnerIterator it(K, col); it; ++it) {
+      const int r = static_cast<int>(it.row());
+      if (free_index[r] < 0) continue;
+      if (free_index[col] >= 0)
+        trips.emplace_back(free_index[r], free_index[col], it.value());
+      else
+        rhs(free_index[r]) -= it.value() * u(col);
+    }
+  if (nf == 0) return u;
+  Eigen::SparseMatrix<double> A(nf, nf);
+  A.setFromTriplets(trips.begin(), trips.end());
+  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>, Eigen::Lower> solver(A);
+  if (solver.info() != Eigen::Success)
+    throw_numerical("sparse Cholesky factorisation of the Laplace system failed",
+                    {.suggestion = "the tetrahedral mesh may have a part without an attachment "
+                                   "area; check the mesh is one closed piece"});
+  const VecX x = solver.solve(rhs);
+  if (solver.info() != Eigen::Success || !x.allFinite())
+    throw_numerical("the Laplace solve produced non-finite values");
+  for (Eigen::Index v = 0; v < n; ++v)
+    if (free_index[v] >= 0) u(v) = x(free_index[v]);
+  return u;
+}
+
+HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& areas,
+                                  const HarmonicOptions& options) {
+  HarmonicField field;
+  field.surface = muscle;
+  field.tets = calc_tet_mesh(muscle, options.tets);
+  field.u = solve_laplace(field.tets, areas.origin.vertices, areas.insertion.vertices);
+  const TetMesh& m = field.tets;
+  field.tet_gradient.resize(m.num_tets(), 3);
+  field.vertex_gradient = Points3::Zero(m.num_vertices(), 3);
+  VecX weight = VecX::Zero(m.num_vertices());
+  for (Eigen::Index t = 0; t < m.num_tets(); ++t) {
+    double vol = 0.0;
+    const auto G = calc_basis_gradients(m, t, vol);
+    Vec3 g = Vec3::Zero();
+    for (int k = 0; k < 4; ++k) g += field.u(m.T(t, k)) * G.row(k).transpose();
+    if (!g.allFinite()) g.setZero();
+    field.tet_gradient.row(t) = g.transpose();
+    const double w = std::max(vol, 0.0);
+    for (int k = 0; k < 4; ++k) {
+      field.vertex_gradient.row(m.T(t, k)) += w * g.transpose();
+      weight(m.T(t, k)) += w;
+    }
+  }
+  for (Eigen::Index v = 0; v < m.num_vertices(); ++v)
+    if (weight(v) > 0.0) field.vertex_gradient.row(v) /= weight(v);
+  return field;
+}
+
+namespace {
+
+// Barycentric coordinates of p in tet t.
+Vec4 calc_barycentric(const TetMesh& m, int t, const Vec3& p) {
+  const Vec3 x0 = m.V.row(m.T(t, 0));
+  Mat3 D;
+  for (int k = 0; k < 3; ++k) D.col(k) = Vec3(m.V.row(m.T(t, k + 1))) - x0;
+  const Vec3 l = D.partialPivLu().solve(p - x0);
+  return {1.0 - l.sum(), l(0), l(1), l(2)};
+}
+
+struct Location {
+  int tet = -1;           // containing tet, or -1 when p is outside the mesh
+  int last_tet = -1;      // the tet where the walk stopped
+  Vec4 bary = Vec4::Zero();
+};
+
+// Visibility walk from `start` towards p (Devillers, Pion and Teillaud 2002).
+Location locate(const TetMesh& m, int start, const Vec3& p) {
+  int t = start;
+  const int max_steps = 2000;
+  for (int step = 0; step < max_steps; ++step) {
+    const Vec4 b = calc_barycentric(m, t, p);
+    int worst = 0;
+    for (int k = 1; k < 4; ++k)
+      if (b(k) < b(worst)) worst = k;
+    if (b(worst) >= -1e-12) return {t, t, b};
+    const int next = m.neighbours(t, worst);
+    if (next < 0) return {-1, t, b};
+    t = next;
+  }
+  return {-1, t, Vec4::Zero()};
+}
+
+struct Tracer {
+  const HarmonicField& f;
+  double h;
+  int max_steps;
+
+  Vec3 velocity(const Location& loc) const {
+    Vec3 g = Vec3::Zero();
+    for (int k = 0; k < 4; ++k) g += loc.bary(k) * f.vertex_gradient.row(f.tets.T(loc.tet, k)).transpose();
+    const double n = g.norm();
+    if (n > 0.0) return g / n;
+    const Vec3 gt = f.tet_gradient.row(loc.tet);
+    return gt.norm() > 0.0 ? Vec3(gt.normalized()) : Vec3::Zero();
+  }
+  double potential(const Location& loc) const {
+    double u = 0.0;
+    for (int k = 0; k < 4; ++k) u += loc.bary(k) * f.u(f.tets.T(loc.tet, k));
+    return u;
+  }
+
+  // Last inside point on the segment a (inside, in tet ta) -> b (outside), by bisection.
+  std::pair<Vec3, Location> find_exit(const Vec3& a, const Location& la, const Vec3& b) const {
+    double lo = 0.0, hi = 1.0;
+    Location best = la;
+    for (int it = 0; it < 40; ++it) {
+      const double mid = 0.5 * (lo + hi);
+      const Location l = locate(f.tets, best.tet, a + mid * (b - a));
+      if (l.tet >= 0) {
+        lo = mid;
+        best = l;
+      } else {
+        hi = mid;
+      }
+    }
+    return {a + lo * (b - a), best};
+  }
+
+  Points3 trace(const Vec3& seed, int seed_tet) const {
+    std::vector<Vec3> pts{seed};
+    Location loc = locate(f.tets, seed_tet, seed);
+    if (loc.tet < 0) return Points3();
+    Vec3 p = seed;
+    for (int step = 0; step < max_steps; ++step) {
+      if (potential(loc) >= 1.0 - 1e-9) break;
+      // RK4 on the unit direction field; stages that leave the mesh fall back to an Euler step.
+      const Vec3 k1 = velocity(loc);
+      if (k1.squaredNorm() == 0.0) break;
+      Vec3 next = p + h * k1;
+      bool rk4 = true;
+      Vec3 k2, k3, k4;
+      const Location l2 = locate(f.tets, loc.tet, p + 0.5 * h * k1);
+      if (l2.tet >= 0) {
+        k2 = velocity(l2);
+        const Location l3 = locate(f.tets, l2.tet, p + 0.5 * h * k2);
+        if (l3.tet >= 0) {
+          k3 = velocity(l3);
+          const Location l4 = locate(f.tets, l3.tet, p + h * k3);
+          if (l4.tet >= 0) {
+            k4 = velocity(l4);
+          } else {
+            rk4 = false;
+          }
+        } else {
+          rk4 = false;
+        }
+      } else {
+        rk4 = false;
+      }
+      if (rk4) next = p + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
+      const Location ln = locate(f.tets, loc.tet, next);
+      if (ln.tet >= 0) {
+        p = next;
+        loc = ln;
+        pts.push_back(p);
+        continue;
+      }
+      // The step leaves the muscle: stop on the boundary.
+      auto [exit, lexit] = find_exit(p, loc, next);
+      if ((exit - p).norm() > 1e-3 * h) pts.push_back(exit);
+      break;
+    }
+    Points3 P(pts.size(), 3);
+    for (std::size_t k = 0; k < pts.size(); ++k) P.row(k) = pts[k].transpose();
+    return P;
+  }
+};
+
+double calc_mean_tet_edge(const TetMesh& m) {
+  double sum = 0.0;
+  const Eigen::Index n = std::min<Eigen::Index>(m.num_tets(), 20000);
+  for (Eigen::Index t = 0; t < n; ++t)
+    for (int a = 0; a < 4; ++a)
+      for (int b = a + 1; b < 4; ++b) sum += (m.V.row(m.T(t, a)) - m.V.row(m.T(t, b))).norm();
+  return sum / (6.0 * std::max<Eigen::Index>(n, 1));
+}
+
+}  // namespace
+
+FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea& origin,
+                               const TraceOptions& options) {
+  if (options.count < 1 || options.resolution < 2)
+    throw_usage("fibre count must be >= 1 and resolution >= 2");
+  if (origin.triangles.empty())
+    throw_bad_input("the origin area has no triangle to seed fibres on", {.object = origin.name});
+  const TetMesh& m = field.tets;
+  // The tet behind each origin triangle (its boundary face), found through the face keys.
+  std::vector<std::pair<std::array<int, 3>, int>> boundary;
+  for (Eigen::Index t = 0; t < m.num_tets(); ++t)
+    for (int c = 0; c < 4; ++c)
+      if (m.neighbours(t, c) < 0) {
+        std::array<int, 3> k{m.T(t, (c + 1) % 4), m.T(t, (c + 2) % 4), m.T(t, (c + 3) % 4)};
+        std::sort(k.begin(), k.end());
+        boundary.emplace_back(k, static_cast<int>(t));
+      }
+  std::sort(boundary.begin(), boundary.end());
+  // Seeds: area-weighted R2 samples over the origin triangles.
+  const TriMesh& S = field.surface;
+  std::vector<double> cumulative;
+  double total = 0.0;
+  for (int f : origin.triangles) {
+    const Vec3 a = S.V.row(S.F(f, 0)), b = S.V.row(S.F(f, 1)), c = S.V.row(S.F(f, 2));
+    total += 0.5 * (b - a).cross(c - a).norm();
+    cumulative.push_back(total);
+  }
+  if (!(total > 0.0))
+    throw_bad_input("the origin area has zero area", {.object = origin.name});
+  const double edge = calc_mean_tet_edge(m);
+  const double diag = (m.V.colwise().maxCoeff() - m.V.colwise().minCoeff()).norm();
+  const Tracer tracer{field, options.step_scale * edge,
+                      static_cast<int>(4.0 * diag / (options.step_scale * edge)) + 10};
+  FibreSet set;
+  set.fibres.resize(options.count);
+  std::vector<char> ok(options.count, 0);
+  parallel_for(static_cast<std::size_t>(options.count), [&](std::size_t i) {
+    const Vec2 r = get_r2_point(static_cast<int>(i));
+    const double target = r.x() * total;
+    const std::size_t k = std::min<std::size_t>(
+        std::lower_bound(cumulative.begin(), cumulative.end(), target) - cumulative.begin(),
+        cumulative.size() - 1);
+    const double lo = k == 0 ? 0.0 : cumulative[k - 1];
+    const double s = std::clamp((target - lo) / std::max(cumulative[k] - lo, 1e-300), 0.0, 1.0);
+    const double t = r.y();
+    const int f = origin.triangles[k];
+    const Vec3 a = S.V.row(S.F(f, 0)), b = S.V.row(S.F(f, 1)), c = S.V.row(S.F(f, 2));
+    const double q = std::sqrt(s);
+    const Vec3 p_surface = (1.0 - q) * a + q * (1.0 - t) * b + q * t * c;
+    std::array<int, 3> key{S.F(f, 0), S.F(f, 1), S.F(f, 2)};
+    std::sort(key.begin(), key.end());
+    const auto it = std::lower_bound(
+        boundary.begin(), boundary.end(), key,
+        [](const std::pair<std::array<int, 3>, int>& e, const std::array<int, 3>& k2) {
+          return e.first < k2;
+        });
+    if (it == boundary.end() || it->first != key) return;  // not a boundary face (cannot happen with -Y)
+    const int tet = it->second;
+    // Start just inside, along the inward normal of the surface triangle.
+    const Vec3 inward = -(b - a).cross(c - a).normalized();
+    const Vec3 seed = p_surface + 1e-3 * edge * inward;
+    Points3 P = tracer.trace(seed, tet);
+    if (P.rows() < 2) return;
+    // Begin exactly on the surface.
+    Points3 full(P.rows() + 1, 3);
+    full.row(0) = p_surface.transpose();
+    full.bottomRows(P.rows()) = P;
+    set.fibres[i] = resample_polyline(full, options.resolution);
+    ok[i] = 1;
+  });
+  // Drop seeds that failed to trace (a degenerate start): keep the order of the rest.
+  FibreSet out;
+  for (int i = 0; i < options.count; ++i)
+    if (ok[i]) out.fibres.push_back(std::move(set.fibres[i]));
+  if (out.fibres.empty())
+    throw_numerical("no fibre could be traced in the harmonic field",
+                    {.suggestion = "check the attachment areas and that the mesh is closed"});
+  return out;
+}
+
+}  // namespace fascicle

@@ -1,0 +1,101 @@
+// Tetrahedralisation, Laplace solve and streamline tracing on analytic shapes.
+#include "fascicle/core/error.hpp"
+#include "fascicle/fibres/harmonic.hpp"
+#include "fascicle/geometry/primitives.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+using namespace fascicle;
+
+namespace {
+
+// A cylinder of radius r, height h along z, with its two caps as origin (z = +h/2, proximal) and
+// insertion (z = -h/2).
+struct CylinderCase {
+  TriMesh mesh;
+  Attachments areas;
+};
+
+CylinderCase make_cylinder_case(double r, double h) {
+  CylinderCase c;
+  c.mesh = make_cylinder(r, h, 32, 12);
+  std::vector<int> top, bottom;
+  for (Eigen::Index v = 0; v < c.mesh.num_vertices(); ++v) {
+    if (c.mesh.V(v, 2) > h / 2 - 1e-12) top.push_back(static_cast<int>(v));
+    if (c.mesh.V(v, 2) < -h / 2 + 1e-12) bottom.push_back(static_cast<int>(v));
+  }
+  c.areas = {make_attachment_area(c.mesh, top, "origin"),
+             make_attachment_area(c.mesh, bottom, "insertion")};
+  return c;
+}
+
+}  // namespace
+
+TEST(TetMesh, KeepsSurfaceAndVolume) {
+  const TriMesh sphere = make_icosphere(0.02, 3);
+  const TetMesh t = calc_tet_mesh(sphere);
+  ASSERT_GE(t.num_vertices(), sphere.num_vertices());
+  EXPECT_TRUE(t.V.topRows(sphere.num_vertices()) == sphere.V);
+  // The tet volume equals the enclosed volume of the polyhedron exactly (same boundary).
+  double enclosed = 0.0;
+  for (Eigen::Index f = 0; f < sphere.num_faces(); ++f)
+    enclosed += Vec3(sphere.V.row(sphere.F(f, 0)))
+                    .dot(Vec3(sphere.V.row(sphere.F(f, 1))).cross(Vec3(sphere.V.row(sphere.F(f, 2))))) /
+                6.0;
+  EXPECT_NEAR(calc_tet_volume(t), enclosed, 1e-12 * enclosed + 1e-18);
+  // Every face is shared by two tets or lies on the boundary; boundary faces = surface triangles.
+  int boundary = 0;
+  for (Eigen::Index k = 0; k < t.num_tets(); ++k)
+    for (int c = 0; c < 4; ++c) boundary += t.neighbours(k, c) < 0;
+  EXPECT_EQ(boundary, sphere.num_faces());
+}
+
+TEST(Laplace, StiffnessAnnihilatesConstantsAndIsSymmetric) {
+  const TetMesh t = calc_tet_mesh(make_box(Vec3(0.01, 0.02, 0.03)));
+  const Eigen::SparseMatrix<double> K = calc_stiffness_matrix(t);
+  const VecX ones = VecX::Ones(t.num_vertices());
+  EXPECT_LT((K * ones).cwiseAbs().maxCoeff(), 1e-12 * K.coeffs().cwiseAbs().maxCoeff());
+  EXPECT_LT((Eigen::SparseMatrix<double>(K.transpose()) - K).norm(), 1e-14 * K.norm());
+  // Energy of a linear function a.x equals |a|^2 volume.
+  const Vec3 a(1.0, -2.0, 0.5);
+  const VecX u = t.V * a;
+  EXPECT_NEAR(u.dot(K * u), a.squaredNorm() * calc_tet_volume(t), 1e-9 * a.squaredNorm() * calc_tet_volume(t));
+}
+
+TEST(Laplace, CylinderSolutionIsLinearInZ) {
+  // Linear elements reproduce linear fields exactly: u = (h/2 - z) / h.
+  const double h = 0.1;
+  const CylinderCase c = make_cylinder_case(0.015, h);
+  const HarmonicField f = calc_harmonic_field(c.mesh, c.areas);
+  for (Eigen::Index v = 0; v < f.tets.num_vertices(); ++v)
+    ASSERT_NEAR(f.u(v), (h / 2 - f.tets.V(v, 2)) / h, 1e-9);
+  for (Eigen::Index k = 0; k < f.tets.num_tets(); ++k)
+    ASSERT_LT((Vec3(f.tet_gradient.row(k)) - Vec3(0, 0, -1 / h)).norm(), 1e-6 / h);
+}
+
+TEST(Laplace, MissingBoundaryIsAnError) {
+  const TetMesh t = calc_tet_mesh(make_box(Vec3(0.01, 0.01, 0.01)));
+  EXPECT_THROW(solve_laplace(t, {}, {0}), Error);
+  EXPECT_THROW(solve_laplace(t, {0}, {0}), Error);
+}
+
+TEST(HarmonicFibres, CylinderStreamlinesAreStraightAndFullLength) {
+  const double h = 0.1, r = 0.015;
+  const CylinderCase c = make_cylinder_case(r, h);
+  const HarmonicField f = calc_harmonic_field(c.mesh, c.areas);
+  const FibreSet s = trace_harmonic_fibres(f, c.areas.origin, {.count = 40, .resolution = 11});
+  ASSERT_EQ(s.size(), 40u);
+  for (const Points3& P : s.fibres) {
+    ASSERT_EQ(P.rows(), 11);
+    EXPECT_NEAR(P(0, 2), h / 2, 1e-12);                 // starts on the origin cap
+    EXPECT_NEAR(P(10, 2), -h / 2, 1e-6);                // ends on the insertion cap
+    EXPECT_NEAR(calc_polyline_length(P), h, 1e-5);      // straight along z
+    for (int k = 0; k < 11; ++k) {
+      EXPECT_NEAR(P(k, 0), P(0, 0), 1e-6);
+      EXPECT_NEAR(P(k, 1), P(0, 1), 1e-6);
+      EXPECT_LE(std::hypot(P(k, 0), P(k, 1)), r + 1e-12);
+    }
+  }
+}

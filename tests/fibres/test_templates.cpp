@@ -1,0 +1,94 @@
+// Fibre templates, polyline helpers.
+#include "fascicle/core/error.hpp"
+#include "fascicle/fibres/fibre_set.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+using namespace fascicle;
+
+TEST(FibreTemplates, ParseNames) {
+  EXPECT_EQ(parse_fibre_template("Parallel"), FibreTemplate::parallel);
+  EXPECT_EQ(parse_fibre_template("unipennate"), FibreTemplate::pennate);
+  EXPECT_EQ(parse_fibre_template("bipennate"), FibreTemplate::bipennate);
+  EXPECT_EQ(to_string(FibreTemplate::fanned), "fanned");
+  EXPECT_THROW(parse_fibre_template("spiral"), Error);
+}
+
+TEST(FibreTemplates, R2SequenceIsWellSpread) {
+  // Every cell of an 8 x 8 grid receives 3 to 5 of the first 256 points (mean 4): a
+  // low-discrepancy sequence. Uniform random points would leave about one cell empty.
+  int cells[8][8] = {};
+  for (int i = 0; i < 256; ++i) {
+    const Vec2 r = get_r2_point(i);
+    ASSERT_GE(r.minCoeff(), 0.0);
+    ASSERT_LT(r.maxCoeff(), 1.0);
+    ++cells[static_cast<int>(r.x() * 8)][static_cast<int>(r.y() * 8)];
+  }
+  for (auto& row : cells)
+    for (int c : row) {
+      EXPECT_GE(c, 3);
+      EXPECT_LE(c, 5);
+    }
+}
+
+TEST(FibreTemplates, ShapesStayInCubeAndFollowTheirDefinition) {
+  for (auto t : {FibreTemplate::parallel, FibreTemplate::pennate, FibreTemplate::bipennate,
+                 FibreTemplate::curved, FibreTemplate::fanned}) {
+    const FibreSet s = make_template_fibres(t, 50, 11);
+    ASSERT_EQ(s.size(), 50u);
+    for (const Points3& f : s.fibres) {
+      ASSERT_EQ(f.rows(), 11);
+      EXPECT_GE(f.minCoeff(), 0.0) << to_string(t);
+      EXPECT_LE(f.maxCoeff(), 1.0) << to_string(t);
+    }
+  }
+  // Parallel: straight along z from z = 0 to z = 1, length exactly 1.
+  for (const Points3& f : make_template_fibres(FibreTemplate::parallel, 20, 7).fibres) {
+    EXPECT_DOUBLE_EQ(f(0, 2), 0.0);
+    EXPECT_DOUBLE_EQ(f(6, 2), 1.0);
+    EXPECT_NEAR(calc_polyline_length(f), 1.0, 1e-14);
+  }
+  // Pennate: from x = 0 to x = 1 rising 0.35 in z: length sqrt(1 + 0.35^2).
+  for (const Points3& f : make_template_fibres(FibreTemplate::pennate, 20, 5).fibres) {
+    EXPECT_DOUBLE_EQ(f(0, 0), 0.0);
+    EXPECT_DOUBLE_EQ(f(4, 0), 1.0);
+    EXPECT_NEAR(calc_polyline_length(f), std::sqrt(1.0 + 0.35 * 0.35), 1e-12);
+  }
+  // Bipennate: starts on the central plane, half of the fibres to each side.
+  int left = 0;
+  for (const Points3& f : make_template_fibres(FibreTemplate::bipennate, 40, 5).fibres) {
+    EXPECT_DOUBLE_EQ(f(0, 0), 0.5);
+    left += f(4, 0) < 0.5;
+  }
+  EXPECT_NEAR(left, 20, 3);
+  // Fanned: the spread in y at the origin is a quarter of that at the insertion.
+  const FibreSet fan = make_template_fibres(FibreTemplate::fanned, 64, 9);
+  double y0min = 1, y0max = 0, y1min = 1, y1max = 0;
+  for (const Points3& f : fan.fibres) {
+    y0min = std::min(y0min, f(0, 1));
+    y0max = std::max(y0max, f(0, 1));
+    y1min = std::min(y1min, f(8, 1));
+    y1max = std::max(y1max, f(8, 1));
+  }
+  EXPECT_NEAR((y0max - y0min) / (y1max - y1min), 0.25, 1e-12);
+  EXPECT_THROW(make_template_fibres(FibreTemplate::parallel, 0, 5), Error);
+  EXPECT_THROW(make_template_fibres(FibreTemplate::parallel, 5, 1), Error);
+}
+
+TEST(FibreTemplates, ResampleKeepsEndsAndSpacing) {
+  Points3 P(3, 3);
+  P << 0, 0, 0, 1, 0, 0, 1, 3, 0;  // length 4
+  const Points3 R = resample_polyline(P, 5);
+  ASSERT_EQ(R.rows(), 5);
+  for (int k = 1; k < 5; ++k) {
+    // Chords across the corner are shorter than 1; the others exactly 1.
+    const double chord = (R.row(k) - R.row(k - 1)).norm();
+    EXPECT_LE(chord, 1.0 + 1e-12);
+  }
+  EXPECT_TRUE(R.row(0).isApprox(P.row(0)));
+  EXPECT_TRUE(R.row(4).isApprox(P.row(2)));
+  EXPECT_NEAR(R(2, 1), 1.0, 1e-12);  // arc length 2 = 1 along x + 1 along y
+  EXPECT_NEAR(R(2, 0), 1.0, 1e-12);
+}
