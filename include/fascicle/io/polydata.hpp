@@ -1,0 +1,50 @@
+// PolyData: points with triangles and/or polylines plus named point and cell fields, written as a
+// VTK XML PolyData file (.vtp) by VTK's own vtkXMLPolyDataWriter (binary, zlib, appended), as
+// ParaView reads it. Used for the per-frame outputs: bones, muscle surfaces, fibres, action lines.
+#pragma once
+
+#include "fascicle/core/types.hpp"
+#include "fascicle/geometry/tri_mesh.hpp"
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace fascicle {
+
+// A named array: one row per point (or cell), `values.cols()` components (1 scalar, 3 vector).
+struct DataField {
+  std::string name;
+  MatX values;
+};
+
+// Cells are ordered as VTK orders them: all polylines first, then all triangles. Cell fields have
+// #lines + #triangles rows in that order; point fields have #points rows.
+struct PolyData {
+  Points3 points;                       // #P×3, metres
+  std::vector<std::vector<int>> lines;  // polylines: point indices, each ≥ 2 points
+  Triangles triangles;                  // #T×3 point indices
+  std::vector<DataField> point_fields;
+  std::vector<DataField> cell_fields;
+
+  long num_cells() const { return static_cast<long>(lines.size()) + triangles.rows(); }
+};
+
+// A PolyData holding a triangle mesh without fields.
+PolyData make_polydata(const TriMesh& mesh);
+
+// Throws fascicle::Error (internal) when indices are out of range or field sizes do not match,
+// naming the field.
+void check_polydata(const PolyData& data);
+
+// Writes a .vtp through vtkXMLPolyDataWriter into a temporary file that is renamed over `path` on
+// success (an error never leaves a partial file). Throws fascicle::Error (bad_input naming the
+// path) when the folder is not writable or VTK reports an error.
+void write_polydata(const std::filesystem::path& path, const PolyData& data);
+
+// Reads a .vtp with vtkXMLPolyDataReader: points, polylines, triangles (polygons with more than
+// three points are kept as fans) and all double/float/int point and cell arrays as doubles.
+// Throws fascicle::Error (bad_input naming the file) when it cannot be read.
+PolyData read_polydata(const std::filesystem::path& path);
+
+}  // namespace fascicle

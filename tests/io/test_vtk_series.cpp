@@ -1,0 +1,112 @@
+// PolyData .vtp output read back by VTK's own reader, .pvd collections, atomic writes.
+#include "fascicle/core/error.hpp"
+#include "fascicle/geometry/primitives.hpp"
+#include "fascicle/io/polydata.hpp"
+#include "fascicle/io/vtk_series.hpp"
+
+#include "test_support.hpp"
+
+#include <gtest/gtest.h>
+
+#include <fstream>
+
+namespace fs = std::filesystem;
+using namespace fascicle;
+
+namespace {
+
+// A surface plus two polylines, with a scalar and a vector point field and a cell field.
+PolyData make_sample() {
+  PolyData d = make_polydata(make_icosphere(0.05, 2));
+  const long n = d.points.rows();
+  d.lines = {{0, 1, 2, 3}, {4, 5}};
+  DataField height{"height", d.points.col(2)};
+  DataField normal{"direction", d.points.rowwise().normalized()};
+  MatX cell(d.num_cells(), 1);
+  for (long c = 0; c < d.num_cells(); ++c) cell(c, 0) = 0.5 * static_cast<double>(c);
+  d.point_fields = {height, normal};
+  d.cell_fields = {{"cell_id_half", cell}};
+  EXPECT_EQ(n, 162);
+  return d;
+}
+
+}  // namespace
+
+TEST(VtkSeries, PolyDataRoundTripThroughVtkReader) {
+  const fs::path dir = test::scratch_dir("vtp_roundtrip");
+  const PolyData d = make_sample();
+  write_polydata(dir / "a.vtp", d);
+  const PolyData r = read_polydata(dir / "a.vtp");
+  ASSERT_EQ(r.points.rows(), 162);
+  EXPECT_EQ(r.triangles.rows(), 320);
+  ASSERT_EQ(r.lines.size(), 2u);
+  EXPECT_EQ(r.lines[0], (std::vector<int>{0, 1, 2, 3}));
+  EXPECT_EQ(r.num_cells(), 322);
+  EXPECT_EQ((r.points - d.points).cwiseAbs().maxCoeff(), 0.0);  // stored as float64
+  EXPECT_EQ((r.triangles - d.triangles).cwiseAbs().maxCoeff(), 0);
+  ASSERT_EQ(r.point_fields.size(), 2u);
+  EXPECT_EQ(r.point_fields[1].name, "direction");
+  EXPECT_EQ(r.point_fields[1].values.cols(), 3);
+  EXPECT_NEAR((r.point_fields[1].values - d.point_fields[1].values).norm(), 0.0, 1e-15);
+  ASSERT_EQ(r.cell_fields.size(), 1u);
+  EXPECT_EQ(r.cell_fields[0].values.rows(), 322);
+  // lines come first in VTK's cell order
+  EXPECT_DOUBLE_EQ(r.cell_fields[0].values(321, 0), 160.5);
+}
+
+TEST(VtkSeries, FieldSizeMismatchIsRejectedBeforeWriting) {
+  const fs::path dir = test::scratch_dir("vtp_bad_field");
+  PolyData d = make_sample();
+  d.point_fields[0].values.resize(3, 1);
+  EXPECT_THROW(write_polydata(dir / "bad.vtp", d), Error);
+  EXPECT_FALSE(fs::exists(dir / "bad.vtp"));
+}
+
+TEST(VtkSeries, FailingWriteLeavesNoFileAndKeepsOldOne) {
+  const fs::path dir = test::scratch_dir("vtp_atomic");
+  const PolyData d = make_sample();
+  write_polydata(dir / "keep.vtp", d);
+  const auto size_before = fs::file_size(dir / "keep.vtp");
+  PolyData bad = d;
+  bad.triangles(0, 0) = 100000;  // invalid: nothing may be written
+  EXPECT_THROW(write_polydata(dir / "keep.vtp", bad), Error);
+  EXPECT_EQ(fs::file_size(dir / "keep.vtp"), size_before);
+  EXPECT_NO_THROW(read_polydata(dir / "keep.vtp"));
+  // no temporary files left behind
+  int files = 0;
+  for (const auto& e : fs::directory_iterator(dir)) files += e.is_regular_file() ? 1 : 0;
+  EXPECT_EQ(files, 1);
+}
+
+TEST(VtkSeries, PvdCollectionRoundTrip) {
+  const fs::path dir = test::scratch_dir("pvd");
+  VtkSeriesWriter series(dir / "run.pvd");
+  const int bone = series.find_or_add_part("tibia");
+  const int muscle = series.find_or_add_part("soleus");
+  EXPECT_EQ(series.find_or_add_part("tibia"), bone);
+  for (int f = 0; f < 3; ++f) {
+    series.add(0.02 * f, bone, "frames/tibia_" + std::to_string(f) + ".vtp");
+    series.add(0.02 * f, muscle, "frames/soleus_" + std::to_string(f) + ".vtp");
+    series.commit();
+  }
+  const auto read = read_pvd(dir / "run.pvd");
+  ASSERT_EQ(read.size(), 6u);
+  EXPECT_EQ(read[3].name, "soleus");
+  EXPECT_EQ(read[3].part, 1);
+  EXPECT_EQ(read[4].time_s, 0.04);  // 17 digits: exact
+  EXPECT_EQ(read[5].file, "frames/soleus_2.vtp");
+}
+
+TEST(VtkSeries, ReadingGarbageIsBadInput) {
+  const fs::path dir = test::scratch_dir("pvd_garbage");
+  std::ofstream(dir / "x.pvd") << "<VTKFile type=\"PolyData\"></VTKFile>";
+  std::ofstream(dir / "x.vtp") << "not xml at all";
+  try {
+    read_pvd(dir / "x.pvd");
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+  }
+  EXPECT_THROW(read_polydata(dir / "x.vtp"), Error);
+  EXPECT_THROW(read_pvd(dir / "missing.pvd"), Error);
+}
