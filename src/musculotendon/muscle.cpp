@@ -320,8 +320,10 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
   const double hi0 = std::sqrt(lMAT_slack * lMAT_slack + h * h);
 
   double vN = 0.0, lM = std::numeric_limits<double>::quiet_NaN();
+  double vN_solved = 0.0;  // the velocity the final fibre length was solved with
   int total_iterations = 0;
   for (int outer = 0; outer < 60; ++outer) {
+    vN_solved = vN;
     double lo = lo0, hi = hi0;
     const Eval elo = evaluate(lo, vN);
     if (elo.r >= 0.0) {  // fibre force beats the tendon even at the lower bound
@@ -367,7 +369,9 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
   }
   if (!std::isfinite(lM)) fail_numerical(m, "static equilibrium produced a non-finite fibre length");
   const Geometry g = fiber_geometry(m, lM, lMT);
-  double vM = vN * vscale;
+  // OpenSim's stiffness-sharing heuristic is discontinuous where the tendon goes slack, so the
+  // fixed point may not settle; the outputs always use the velocity the length was solved with.
+  double vM = vN_solved * vscale;
   if (o.fiber_at_lower_bound && vM < 0.0) vM = 0.0;
   const bool clamped = o.fiber_at_lower_bound;
   fill_outputs(m, a, g, vM, lMT, vMT, false, o);
