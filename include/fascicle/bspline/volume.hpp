@@ -1,0 +1,67 @@
+// Exact volume of a B-spline solid and its gradient (seed 000 §3.1.1).
+//
+// V = ∫∫∫ det J(u,v,w) du dv dw, J = dx/d(u,v,w). det J is a polynomial of degree 3p-1 in each
+// parameter on every knot span, so Gauss–Legendre quadrature with ceil(3p/2) points per span and
+// direction is exact (up to rounding). For solids whose non-periodic directions have clamped knots,
+// the divergence theorem (∇·x = 3) turns V into an integral over the six boundary faces,
+//   V = 1/3 ∮ x·n dA = 1/3 Σ_faces ± ∫∫ x·(x_a × x_b) da db,
+// and each face is the B-spline surface of the boundary layer of control points, so interior
+// control points do not enter. The first variation of V is ∮ δx·n dA, hence
+//   dV/dP_I = ∫∫ N_I n dA over the faces that contain P_I (boundary form), or
+//   dV/dP_I = ∫∫∫ (∂_u N_I x_v×x_w + ∂_v N_I x_w×x_u + ∂_w N_I x_u×x_v) du dv dw (volume form).
+// Both are exact polynomial integrals with the same quadrature. V is signed: a left-handed
+// parametrisation (reversed orientation) gives exactly -V.
+#pragma once
+
+#include "fascicle/bspline/solid.hpp"
+
+#include <vector>
+
+namespace fascicle {
+
+struct VolumeAndGradient {
+  double volume_m3 = 0.0;
+  Points3 gradient;  // #P x 3, dV/dP in m^2 (rows follow the control-point order of the solid)
+};
+
+// Gauss–Legendre nodes on [-1, 1] (ascending) and weights, n >= 1.
+void calc_gauss_legendre(int n, std::vector<double>& nodes, std::vector<double>& weights);
+
+// Points per knot span that integrate det J exactly for a direction of this degree.
+int find_volume_quadrature_order(int degree);
+
+// Volume by quadrature of det J over the parametric box (any knots).
+double calc_volume(const BSplineSolid& solid);
+VolumeAndGradient calc_volume_and_gradient(const BSplineSolid& solid);
+
+// Volume from the boundary faces only. Throws bad_input if a non-periodic direction is not clamped.
+double calc_boundary_volume(const BSplineSolid& solid);
+VolumeAndGradient calc_boundary_volume_and_gradient(const BSplineSolid& solid);
+
+// The reusable form of calc_boundary_volume_and_gradient: basis values at the quadrature points
+// are computed once for a lattice; calc() then only touches control points (sum factorisation
+// face by face).
+class BoundaryVolumeIntegrator {
+ public:
+  explicit BoundaryVolumeIntegrator(const BSplineSolid& lattice);
+  // P: control points of a solid with the lattice given to the constructor.
+  VolumeAndGradient calc(const Points3& P) const;
+  double calc_volume(const Points3& P) const;
+
+ private:
+  struct QuadPoint {
+    double weight;
+    BasisValues basis;
+  };
+  template <bool kGradient>
+  double integrate(const Points3& P, Points3* gradient) const;
+  std::array<BSplineBasis, 3> basis_;
+  std::array<std::vector<QuadPoint>, 3> points_;
+};
+
+// Gradient with respect to spatial points x_s = x(U_s) instead of control points: when the
+// control points are the least-squares solution P = A^+ X of A P = X (A_si = N_i(U_s), A of full
+// column rank), dV/dX = A^{+T} dV/dP. material: #S x 3 material points. Returns #S x 3 (m^2).
+Points3 calc_volume_gradient_wrt_spatial_points(const BSplineSolid& solid, const Points3& material);
+
+}  // namespace fascicle
