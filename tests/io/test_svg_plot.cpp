@@ -19,7 +19,7 @@ TEST(SvgPlot, NiceTicks) {
   const auto u = calc_nice_ticks(-37.0, 1234.0, 6);
   EXPECT_LE(u.front(), -37.0);
   EXPECT_GE(u.back(), 1234.0);
-  EXPECT_NEAR(u[1] - u[0], 200.0, 1e-9);
+  EXPECT_NEAR(u[1] - u[0], 500.0, 1e-9);  // span 1271 / 6 = 212 -> next nice step 500
 }
 
 TEST(SvgPlot, WritesSeriesLegendAndLabels) {
