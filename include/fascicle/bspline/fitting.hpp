@@ -1,0 +1,63 @@
+// Data fitting of B-spline solids (seed 000 §3.1.2).
+//
+// Control points from samples with known material coordinates: minimise
+//   sum_s w_s |x(U_s) - X_s|^2 + lambda |D P|^2
+// over the free control points (lattice constraints eliminated, P = E P_free), where D holds the
+// second differences of the control lattice along each direction (periodic ones wrap): linear least
+// squares, solved from the sparse normal equations by Eigen's SimplicialLDLT. lambda is
+// `smoothing` times trace(A^T A) / trace(D^T D), so it does not depend on units or sample count.
+//
+// From a closed muscle surface mesh: the mesh is sliced by planes normal to the muscle axis
+// (origin -> insertion, or the longest axis of its oriented box), each slice must be one closed
+// contour (tiny extra contours are ignored); contours are parametrised by arc length from a seam
+// where they cross a fixed reference direction (consistent seams), giving boundary samples
+// (u = 1, v = arc fraction, w = slice level) and interior samples on the segments from the contour
+// centroid (u < 1). The lattice is cylindrical: u radial (axis at u = 0, constrained), v around
+// (periodic), w along the axis (clamped).
+#pragma once
+
+#include "fascicle/bspline/lattice.hpp"
+#include "fascicle/geometry/tri_mesh.hpp"
+
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace fascicle {
+
+// material, X: #S x 3; weights: #S (empty: all 1). Returns the fitted control points (#P x 3).
+// Throws bad_input if the samples do not determine the control points.
+Points3 fit_control_points(const BSplineSolid& lattice, const LatticeConstraints& constraints,
+                           const Points3& material, const Points3& X, const VecX& weights = {},
+                           double smoothing = 1e-6);
+
+struct MeshFitOptions {
+  std::array<int, 3> count{4, 12, 10};  // control points u (radial), v (around), w (along)
+  std::array<int, 3> degree{2, 3, 3};
+  int num_slices = 48;
+  int contour_samples = 96;             // boundary samples per slice
+  int radial_samples = 4;               // interior rings per slice (u < 1)
+  double end_inset = 0.004;             // first/last slice: this fraction of the length inside
+  double smoothing = 1e-7;
+  std::optional<Vec3> origin;           // attachment centres (m); both or neither
+  std::optional<Vec3> insertion;
+  std::string name;
+};
+
+struct MeshFitResult {
+  BSplineSolid solid;
+  LatticeConstraints constraints;
+  Vec3 axis_start = Vec3::Zero(), axis_end = Vec3::Zero();  // w = 0 and w = 1 slice centres
+  int num_samples = 0;
+  double mean_distance_m = 0.0;  // fitted boundary (tessellation vertices) to mesh
+  double max_distance_m = 0.0;
+  double mesh_volume_m3 = 0.0;
+  double solid_volume_m3 = 0.0;  // exact (boundary formula)
+  double volume_difference = 0.0;  // (solid - mesh) / mesh
+};
+
+// Throws bad_input naming the slice (index and axial position) when a slice is not a single
+// closed contour, or when the mesh is open or empty.
+MeshFitResult fit_solid_to_mesh(const TriMesh& mesh, const MeshFitOptions& options = {});
+
+}  // namespace fascicle
