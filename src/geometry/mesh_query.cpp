@@ -145,6 +145,11 @@ struct MeshQuery::Bvh {
   // Per slot, kStride doubles: the centre and radius of a bounding sphere (a cheap lower bound on
   // the distance, to skip exact tests), then corners a, b, c.
   static constexpr std::size_t kStride = 16;
+  // Embree primitives are clusters of kCluster consecutive slots: one callback tests a few
+  // neighbouring triangles stored together, which halves the memory traffic of a query.
+  static constexpr unsigned kCluster = 4;
+  unsigned num_slots = 0;
+  unsigned slot_end(unsigned prim) const { return std::min(num_slots, (prim + 1) * kCluster); }
   std::vector<double> corners;
   std::vector<int> triangle_of;  // slot -> row of F
   std::vector<int> slot_of;      // row of F -> slot
@@ -183,15 +188,24 @@ float round_up(double x) {
   return f;
 }
 
-// Padded, outward-rounded float box of one double triangle.
+// Padded, outward-rounded float box of one cluster of double triangles.
 void bounds_callback(const RTCBoundsFunctionArguments* args) {
   const auto* bvh = static_cast<const MeshQuery::Bvh*>(args->geometryUserPtr);
-  const double* c =
-      bvh->corners.data() + MeshQuery::Bvh::kStride * static_cast<std::size_t>(args->primID) + 4;
   double lo[3], hi[3];
   for (int k = 0; k < 3; ++k) {
-    lo[k] = std::min({c[k], c[3 + k], c[6 + k]}) - bvh->pad;
-    hi[k] = std::max({c[k], c[3 + k], c[6 + k]}) + bvh->pad;
+    lo[k] = std::numeric_limits<double>::infinity();
+    hi[k] = -std::numeric_limits<double>::infinity();
+  }
+  for (unsigned t = args->primID * MeshQuery::Bvh::kCluster; t < bvh->slot_end(args->primID); ++t) {
+    const double* c = bvh->corners.data() + MeshQuery::Bvh::kStride * t + 4;
+    for (int k = 0; k < 3; ++k) {
+      lo[k] = std::min({lo[k], c[k], c[3 + k], c[6 + k]});
+      hi[k] = std::max({hi[k], c[k], c[3 + k], c[6 + k]});
+    }
+  }
+  for (int k = 0; k < 3; ++k) {
+    lo[k] -= bvh->pad;
+    hi[k] += bvh->pad;
   }
   RTCBounds* b = args->bounds_o;
   b->lower_x = round_down(lo[0]);
@@ -218,9 +232,8 @@ float padded_radius(double d, double radius_pad) {
   return round_up(d * (1.0 + 1e-6) + radius_pad);
 }
 
-bool point_query_callback(RTCPointQueryFunctionArguments* args) {
-  auto* q = static_cast<PointQueryState*>(args->userPtr);
-  const unsigned t = args->primID;
+// Tests one slot against the best so far; true if it became the best.
+bool test_slot(PointQueryState* q, unsigned t) {
   // Farther than the best so far even at its bounding sphere (with a margin for the rounding of
   // the bound): cannot win, nor tie.
   if (q->bvh->lower_bound_d2(t, q->p) > q->best_d2 * (1.0 + 1e-12)) return false;
@@ -234,10 +247,19 @@ bool point_query_callback(RTCPointQueryFunctionArguments* args) {
     q->best_d2 = d2;
     q->best_slot = static_cast<int>(t);
     q->best = tp;
-    args->query->radius = padded_radius(std::sqrt(d2), q->radius_pad);
     return true;
   }
   return false;
+}
+
+bool point_query_callback(RTCPointQueryFunctionArguments* args) {
+  auto* q = static_cast<PointQueryState*>(args->userPtr);
+  bool improved = false;
+  for (unsigned t = args->primID * MeshQuery::Bvh::kCluster; t < q->bvh->slot_end(args->primID); ++t) {
+    improved = test_slot(q, t) || improved;
+  }
+  if (improved) args->query->radius = padded_radius(std::sqrt(q->best_d2), q->radius_pad);
+  return improved;
 }
 
 // What a ray carries through Embree. The Embree context must be the first member: the intersect
@@ -255,10 +277,7 @@ struct RayState {
   bool grazed;                   // RayMode::crossings: a hit on an edge/vertex or in-plane
 };
 
-void intersect_callback(const RTCIntersectFunctionNArguments* args) {
-  if (args->N != 1 || args->valid[0] == 0) return;
-  auto* r = reinterpret_cast<RayState*>(args->context);
-  const unsigned t = args->primID;
+void intersect_slot(const RTCIntersectFunctionNArguments* args, RayState* r, unsigned t) {
   const double t_max = r->mode == RayMode::first ? std::min(r->t_max, r->first.t) : r->t_max;
   bool on_edge = false;
   std::optional<RayHit> hit =
@@ -282,7 +301,15 @@ void intersect_callback(const RTCIntersectFunctionNArguments* args) {
   const float tf = round_up(hit->t * (1.0 + 1e-6) + r->bvh->pad / r->direction.norm());
   rayhit->ray.tfar = std::min(rayhit->ray.tfar, tf);
   rayhit->hit.geomID = args->geomID;
-  rayhit->hit.primID = t;
+  rayhit->hit.primID = args->primID;
+}
+
+void intersect_callback(const RTCIntersectFunctionNArguments* args) {
+  if (args->N != 1 || args->valid[0] == 0) return;
+  auto* r = reinterpret_cast<RayState*>(args->context);
+  for (unsigned t = args->primID * MeshQuery::Bvh::kCluster; t < r->bvh->slot_end(args->primID); ++t) {
+    intersect_slot(args, r, t);
+  }
 }
 
 void occluded_callback(const RTCOccludedFunctionNArguments* /*args*/) {}
@@ -434,7 +461,8 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
   rtcSetSceneFlags(bvh.scene, RTC_SCENE_FLAG_ROBUST);
   rtcSetSceneBuildQuality(bvh.scene, RTC_BUILD_QUALITY_HIGH);
   RTCGeometry geom = rtcNewGeometry(bvh.device, RTC_GEOMETRY_TYPE_USER);
-  rtcSetGeometryUserPrimitiveCount(geom, static_cast<unsigned>(nf));
+  bvh.num_slots = static_cast<unsigned>(nf);
+  rtcSetGeometryUserPrimitiveCount(geom, (bvh.num_slots + Bvh::kCluster - 1) / Bvh::kCluster);
   rtcSetGeometryUserData(geom, &bvh);
   rtcSetGeometryBoundsFunction(geom, bounds_callback, nullptr);
   rtcSetGeometryIntersectFunction(geom, intersect_callback);
