@@ -32,12 +32,12 @@ Points3 fit_control_points(const BSplineSolid& lattice, const LatticeConstraints
                            double smoothing = 1e-6);
 
 struct MeshFitOptions {
-  std::array<int, 3> count{4, 12, 10};  // control points u (radial), v (around), w (along)
+  std::array<int, 3> count{4, 16, 14};  // control points u (radial), v (around), w (along)
   std::array<int, 3> degree{2, 3, 3};
   int num_slices = 48;
   int contour_samples = 96;             // boundary samples per slice
   int radial_samples = 4;               // interior rings per slice (u < 1)
-  double end_inset = 0.004;             // first/last slice: this fraction of the length inside
+  double end_inset = 0.0015;            // first/last slice: this fraction of the length inside
   double smoothing = 1e-7;
   std::optional<Vec3> origin;           // attachment centres (m); both or neither
   std::optional<Vec3> insertion;
