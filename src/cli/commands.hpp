@@ -12,5 +12,7 @@ struct Invocation {
   std::function<void()> action;  // the work of the chosen subcommand; throws fascicle::Error
 };
 
+void add_demo_commands(CLI::App& app, Invocation& run);  // cmd_demo.cpp
+
 
 }  // namespace fascicle::cli

@@ -24,6 +24,7 @@ int main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber);
 
   fascicle::cli::Invocation run;
+  fascicle::cli::add_demo_commands(app, run);
 
   try {
     app.parse(argc, argv);

@@ -1,0 +1,47 @@
+// The built-in kinds registered by register_builtins(), for direct use and for tests.
+#pragma once
+
+#include "fascicle/scene/registry.hpp"
+#include "fascicle/scene/state.hpp"
+
+namespace fascicle {
+
+// Joint types. pin: rotation by q about `axis` (unit, in F = M); slider: translation by q along
+// `axis`; weld: no coordinates; free: 3 rotations (body-fixed x-y-z sequence) then 3 translations.
+std::unique_ptr<const JointKinematics> make_weld_joint(const SceneJointSpec& spec);
+std::unique_ptr<const JointKinematics> make_pin_joint(const SceneJointSpec& spec);
+std::unique_ptr<const JointKinematics> make_slider_joint(const SceneJointSpec& spec);
+std::unique_ptr<const JointKinematics> make_free_joint(const SceneJointSpec& spec);
+
+// "hill": the musculotendon module's static equilibrium (calc_static_equilibrium) at zero
+// lengthening speed, for the spec's model and parameters.
+std::unique_ptr<const Actuator> make_hill_actuator(const MuscleSpec& spec);
+
+// "blended_surface": the interim deformation (docs/scene-format.md). Each rest vertex is bound to
+// the nearest segment of the rest action line; its motion is the blend (1−w)·T_a + w·T_b of the
+// rigid motions of the bodies at the segment's ends with w = smoothstep(s) of its position s along
+// the segment; vertices inside an attachment area follow that body rigidly. Volume is not
+// preserved: the change is reported per frame.
+std::unique_ptr<const MuscleRepresentation> make_blended_surface(const Model& model, MuscleIndex m);
+// "action_line": no surface; the muscle is its action line only.
+std::unique_ptr<const MuscleRepresentation> make_action_line_only(const Model& model, MuscleIndex m);
+
+// Writers: "paraview" (OUT/<basename>.pvd + OUT/<basename>_frames/*.vtp), "sto" and "csv"
+// (OUT/<basename>_muscles.sto/.csv: per-muscle metrics per frame), "summary" (OUT/summary.json).
+std::unique_ptr<FrameWriter> make_paraview_writer();
+std::unique_ptr<FrameWriter> make_sto_writer();
+std::unique_ptr<FrameWriter> make_csv_writer();
+std::unique_ptr<FrameWriter> make_summary_writer();
+
+}  // namespace fascicle
+
+namespace fascicle {
+
+// Per-muscle scalar metrics of a frame, in the order of get_muscle_metric_names():
+// activation, musculotendon_length_m, fiber_length_m, norm_fiber_length, pennation_rad,
+// tendon_length_m, tendon_force_N, active_fiber_force_N, passive_fiber_force_N, volume_m3,
+// relative_volume_change. NaN where not computed.
+const std::vector<std::string>& get_muscle_metric_names();
+std::vector<double> get_muscle_metrics(const Muscle& muscle, const MuscleFrame& frame);
+
+}  // namespace fascicle

@@ -1,0 +1,146 @@
+// The plug-in registry (DANCE-style, seed 000 §6): each object kind — joint types, muscle
+// representations, actuators, wrap surfaces, writers — maps a name to a factory. A Registry is a
+// plain object owned by the application and passed to compile() and the driver; there is no
+// global registry. register_builtins() adds the kinds fascicle ships; a program (or a test) adds
+// its own kinds with `registry.muscle_representations.add("mine", factory)` and uses them from a
+// scene file without changing fascicle.
+#pragma once
+
+#include "fascicle/core/error.hpp"
+#include "fascicle/core/types.hpp"
+#include "fascicle/musculotendon/muscle.hpp"
+#include "fascicle/scene/ids.hpp"
+#include "fascicle/scene/scene_spec.hpp"
+
+#include <filesystem>
+#include <functional>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace fascicle {
+
+struct Model;
+struct State;
+struct MuscleFrame;
+
+// Kinematics of a joint type: the pose of the child's joint frame M in the parent's joint frame F
+// as a function of the joint's coordinates.
+class JointKinematics {
+ public:
+  virtual ~JointKinematics() = default;
+  virtual int get_num_coordinates() const = 0;
+  // True when coordinate k is an angle (rad; converted from degrees when a motion file says so).
+  virtual bool is_rotational(int k) const = 0;
+  // X_F_M for the coordinate values q[0 .. get_num_coordinates()).
+  virtual Transform calc_X_F_M(const double* q) const = 0;
+};
+using JointFactory = std::function<std::unique_ptr<const JointKinematics>(const SceneJointSpec&)>;
+
+// What a muscle looks like at a frame: given the posed bodies and the muscle's action line
+// (State stage >= action lines), fill `out.surface` (and optionally `out.fibres`, `out.volume_m3`).
+// Constructed in compile() once the bodies, joints, attachments and default pose are known.
+class MuscleRepresentation {
+ public:
+  virtual ~MuscleRepresentation() = default;
+  virtual void calc_geometry(const Model& model, MuscleIndex muscle, const State& state,
+                             MuscleFrame& out) const = 0;
+};
+using MuscleRepresentationFactory = std::function<std::unique_ptr<const MuscleRepresentation>(
+    const Model& model, MuscleIndex muscle)>;
+
+// Force generation of a musculotendon unit from its path length (static equilibrium at zero
+// lengthening speed for the built-in "hill").
+class Actuator {
+ public:
+  virtual ~Actuator() = default;
+  virtual MuscleOutputs calc_outputs(double activation, double musculotendon_length_m) const = 0;
+};
+using ActuatorFactory = std::function<std::unique_ptr<const Actuator>(const MuscleSpec&)>;
+
+// A rigid obstacle a path wraps over: the shortest path from a to b around the surface (both in
+// the surface's frame), as a polyline including a and b.
+class WrapSurface {
+ public:
+  virtual ~WrapSurface() = default;
+  virtual Points3 calc_wrapped_path(const Vec3& a, const Vec3& b) const = 0;
+};
+using WrapSurfaceFactory =
+    std::function<std::unique_ptr<const WrapSurface>(const std::map<std::string, double>& options)>;
+
+// Receives the State of every frame (after forward()) and writes it somewhere. begin() is called
+// once before the first frame, finish() after the last frame or after a failure (so whatever was
+// written stays valid).
+struct RunInfo {
+  std::filesystem::path out_dir;
+  std::string basename = "scene";  // file stem for series and tables
+  int num_frames = 0;
+  double frame_rate_hz = 0.0;
+};
+class FrameWriter {
+ public:
+  virtual ~FrameWriter() = default;
+  virtual void begin(const Model& model, const RunInfo& info) = 0;
+  virtual void write_frame(const Model& model, const State& state, int frame) = 0;
+  virtual void finish(const Model& model) = 0;
+  // Files written, for the user (relative or absolute paths).
+  virtual std::vector<std::filesystem::path> get_outputs() const = 0;
+};
+using WriterFactory = std::function<std::unique_ptr<FrameWriter>()>;
+
+// Name → factory for one kind of object.
+template <class Factory>
+class FactoryTable {
+ public:
+  explicit FactoryTable(std::string kind) : kind_(std::move(kind)) {}
+
+  // Adds a kind; throws a usage error if the name is taken (remove it first to replace it).
+  void add(const std::string& name, Factory factory) {
+    if (table_.count(name)) throw_usage(kind_ + " '" + name + "' is already registered");
+    table_.emplace(name, std::move(factory));
+  }
+  void remove(const std::string& name) { table_.erase(name); }
+  const Factory* find(const std::string& name) const {
+    const auto it = table_.find(name);
+    return it == table_.end() ? nullptr : &it->second;
+  }
+  // The factory, or a bad-input error naming the kind and suggesting the nearest registered name.
+  const Factory& get(const std::string& name, ErrorContext where = {}) const;
+  std::vector<std::string> get_names() const {
+    std::vector<std::string> names;
+    for (const auto& [name, f] : table_) names.push_back(name);
+    return names;
+  }
+  const std::string& get_kind() const { return kind_; }
+
+ private:
+  std::string kind_;
+  std::map<std::string, Factory> table_;
+};
+
+struct Registry {
+  FactoryTable<JointFactory> joint_types{"joint type"};
+  FactoryTable<MuscleRepresentationFactory> muscle_representations{"muscle representation"};
+  FactoryTable<ActuatorFactory> actuators{"actuator"};
+  FactoryTable<WrapSurfaceFactory> wrap_surfaces{"wrap surface"};
+  FactoryTable<WriterFactory> writers{"writer"};
+};
+
+// Joint types "weld", "pin" (alias "hinge"), "slider", "free"; muscle representations
+// "blended_surface", "action_line"; actuators "hill", "none"; writers "paraview", "sto", "csv".
+void register_builtins(Registry& registry);
+
+// A registry with the built-ins.
+Registry make_default_registry();
+
+[[noreturn]] void throw_unknown_name(const std::string& kind, const std::string& name,
+                                     const std::vector<std::string>& valid, ErrorContext where);
+
+template <class Factory>
+const Factory& FactoryTable<Factory>::get(const std::string& name, ErrorContext where) const {
+  if (const Factory* f = find(name)) return *f;
+  throw_unknown_name(kind_, name, get_names(), std::move(where));
+}
+
+}  // namespace fascicle

@@ -1,0 +1,52 @@
+// Per-frame State of a scene and the stage functions that fill it, in dependency order:
+// pose (q → body transforms) → action lines (origin → via points → insertion) → forces
+// (musculotendon state) → muscle geometry. Each stage requires the previous one; forward() runs
+// them all. Shape f(const Model&, State&); the Model is never modified.
+#pragma once
+
+#include "fascicle/core/types.hpp"
+#include "fascicle/musculotendon/muscle.hpp"
+#include "fascicle/scene/model.hpp"
+
+#include <limits>
+#include <vector>
+
+namespace fascicle {
+
+enum class Stage { none = 0, pose = 1, action_lines = 2, forces = 3, geometry = 4 };
+
+struct MuscleFrame {
+  static constexpr double nan = std::numeric_limits<double>::quiet_NaN();
+  Points3 action_line;                // origin centroid, via points, insertion centroid (ground)
+  std::vector<BodyIndex> action_line_bodies;  // the body each action-line point moves with
+  double musculotendon_length_m = nan;
+  MuscleOutputs hill;                 // NaN when the muscle has no actuator
+  Points3 surface;                    // ground frame; rows match the Model's rest mesh
+  std::vector<Points3> fibres;        // polylines in ground (optional)
+  double volume_m3 = nan;
+  double relative_volume_change = nan;  // volume / rest volume − 1
+};
+
+struct State {
+  double time_s = 0.0;
+  VecX q;                                  // #coordinates
+  std::vector<Transform> X_ground_body;    // #bodies (valid from Stage::pose)
+  std::vector<MuscleFrame> muscles;        // #muscles
+  Stage stage = Stage::none;
+};
+
+// A state at the default coordinates, nothing computed.
+State make_state(const Model& model);
+
+// Requires nothing; sets X_ground_body from q. Stage → pose.
+void calc_pose(const Model& model, State& state);
+// Requires Stage::pose. Action lines and musculotendon lengths, in parallel over muscles.
+void calc_action_lines(const Model& model, State& state);
+// Requires Stage::action_lines. Hill outputs at each muscle's activation, in parallel.
+void calc_forces(const Model& model, State& state);
+// Requires Stage::forces. Muscle surfaces by each muscle's representation, in parallel.
+void calc_muscle_geometry(const Model& model, State& state);
+// All stages in order. A failure throws fascicle::Error naming the muscle.
+void forward(const Model& model, State& state);
+
+}  // namespace fascicle

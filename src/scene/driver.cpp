@@ -1,0 +1,96 @@
+#include "fascicle/scene/driver.hpp"
+
+#include "fascicle/core/error.hpp"
+#include "fascicle/core/log.hpp"
+#include "fascicle/core/progress.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+namespace fascicle {
+
+CoordinateTrajectory make_trajectory(const Model& model, const Table& motion, double frame_rate_hz) {
+  const Table t = resample_linear(motion, frame_rate_hz);
+  CoordinateTrajectory traj;
+  traj.time = t.time;
+  traj.q = model.default_q.transpose().replicate(t.rows(), 1);
+  int matched = 0;
+  for (long c = 0; c < t.columns(); ++c) {
+    const std::string name = find_coordinate_of_label(t.labels[c]);
+    const CoordinateIndex ci = name.empty() ? CoordinateIndex{} : model.find_coordinate(name);
+    if (!ci.valid()) {
+      spdlog::debug("motion column '{}' matches no coordinate; ignored", t.labels[c]);
+      continue;
+    }
+    ++matched;
+    const Coordinate& coord = model.coordinates[ci.v];
+    const double scale = (t.in_degrees && coord.rotational) ? M_PI / 180.0 : 1.0;
+    bool clamped = false;
+    for (long r = 0; r < t.rows(); ++r) {
+      const double v = scale * t.data(r, c);
+      const double cv = std::clamp(v, coord.range_min, coord.range_max);
+      clamped |= cv != v;
+      traj.q(r, ci.v) = cv;
+    }
+    if (clamped) spdlog::warn("motion takes coordinate '{}' outside its range; values clamped", coord.name);
+  }
+  if (matched == 0 && model.num_coordinates() > 0)
+    throw_bad_input("no motion column matches a coordinate of the scene",
+                    {.suggestion = "name the columns after the coordinates (e.g. '" +
+                                   model.coordinates[0].name + "')"});
+  return traj;
+}
+
+DriverResult run_frames(const Model& model, const CoordinateTrajectory& traj, const DriverOptions& options,
+                        const std::vector<FrameWriter*>& writers) {
+  const int frames = static_cast<int>(traj.time.size());
+  if (traj.q.rows() != frames || traj.q.cols() != model.num_coordinates())
+    throw_internal("run_frames: trajectory has the wrong shape");
+  RunInfo info{options.out_dir, options.basename, frames, options.frame_rate_hz};
+  for (FrameWriter* w : writers) w->begin(model, info);
+
+  DriverResult result;
+  const auto start = std::chrono::steady_clock::now();
+  std::unique_ptr<ProgressBar> bar;
+  if (options.progress) bar = std::make_unique<ProgressBar>("frames", static_cast<size_t>(frames));
+  State state = make_state(model);
+  int frame = 0;
+  try {
+    for (; frame < frames; ++frame) {
+      state.time_s = traj.time[frame];
+      state.q = traj.q.row(frame).transpose();
+      state.stage = Stage::none;
+      forward(model, state);
+      for (FrameWriter* w : writers) w->write_frame(model, state, frame);
+      ++result.frames_written;
+      if (bar) bar->advance();
+    }
+  } catch (const Error& e) {
+    if (bar) bar->finish();
+    for (FrameWriter* w : writers) w->finish(model);
+    ErrorContext ctx = e.context();
+    const std::string where = "frame " + std::to_string(frame) + " (t = " + std::to_string(state.time_s) +
+                              " s)";
+    if (ctx.suggestion.empty())
+      ctx.suggestion = std::to_string(result.frames_written) + " frames before it were written and stay valid";
+    throw Error(e.kind(), e.message() + " at " + where, ctx);
+  }
+  if (bar) bar->finish();
+  for (FrameWriter* w : writers) w->finish(model);
+  result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  for (FrameWriter* w : writers)
+    for (auto& p : w->get_outputs()) result.outputs.push_back(p);
+  return result;
+}
+
+std::vector<std::unique_ptr<FrameWriter>> make_writers(const Registry& registry,
+                                                       const std::vector<std::string>& names) {
+  std::vector<std::string> use = names;
+  if (use.empty()) use = {"paraview", "sto", "csv", "summary"};
+  std::vector<std::unique_ptr<FrameWriter>> writers;
+  for (const auto& n : use) writers.push_back(registry.writers.get(n)());
+  return writers;
+}
+
+}  // namespace fascicle

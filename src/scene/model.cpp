@@ -1,0 +1,278 @@
+// compile(SceneSpec) → Model: name resolution, joint ordering, mass properties, frames.
+#include "fascicle/scene/model.hpp"
+
+#include "fascicle/core/error.hpp"
+#include "fascicle/geometry/mass_properties.hpp"
+#include "fascicle/scene/names.hpp"
+
+#include <cmath>
+
+namespace fascicle {
+namespace {
+
+template <class T>
+int find_by_name(const std::vector<T>& items, const std::string& name) {
+  for (size_t i = 0; i < items.size(); ++i)
+    if (items[i].name == name) return static_cast<int>(i);
+  return -1;
+}
+
+std::vector<std::string> body_names(const std::vector<Body>& bodies) {
+  std::vector<std::string> names;
+  for (const auto& b : bodies) names.push_back(b.name);
+  return names;
+}
+
+BodyIndex resolve_body(const std::vector<Body>& bodies, const std::string& name,
+                       const std::string& object, const std::string& role) {
+  const int i = find_by_name(bodies, name);
+  if (i < 0)
+    throw_bad_input(role + " refers to unknown body '" + name + "'",
+                    {.object = object, .suggestion = make_name_suggestion(name, body_names(bodies))});
+  return BodyIndex{i};
+}
+
+Body compile_body(const SceneBodySpec& spec) {
+  Body body;
+  body.name = spec.name;
+  if (spec.mesh) {
+    body.mesh = *spec.mesh;
+    const MassProperties mp = [&] {
+      try {
+        return calc_mass_properties(body.mesh, spec.density_kg_per_m3);
+      } catch (const Error& e) {
+        throw e.with_object(spec.name);
+      }
+    }();
+    if (!(mp.volume_m3 > 0.0)) {
+      throw_bad_input("body mesh encloses a non-positive volume (" + std::to_string(mp.volume_m3) +
+                          " m³): it is open or oriented inward",
+                      {.file = spec.mesh_file.string(), .object = spec.name,
+                       .suggestion = "repair it with `fascicle mesh repair`"});
+    }
+    body.mesh_volume_m3 = mp.volume_m3;
+    body.mass_kg = mp.mass_kg;
+    body.center_of_mass = mp.centroid;
+    body.inertia = mp.inertia;
+  }
+  if (spec.mass_kg) {
+    if (!(*spec.mass_kg >= 0.0)) throw_bad_input("body mass must be ≥ 0", {.object = spec.name});
+    // Given mass with a mesh: scale the mesh inertia to it (uniform density assumed).
+    if (body.mass_kg > 0.0) body.inertia *= *spec.mass_kg / body.mass_kg;
+    body.mass_kg = *spec.mass_kg;
+  }
+  if (spec.center_of_mass) body.center_of_mass = *spec.center_of_mass;
+  if (spec.inertia) body.inertia = *spec.inertia;
+  return body;
+}
+
+// Orders the joints parents-first; every body except ground is the child of exactly one joint.
+std::vector<int> order_joints(const std::vector<Joint>& joints, int num_bodies) {
+  std::vector<int> child_of(num_bodies, -1);
+  for (size_t j = 0; j < joints.size(); ++j) {
+    const int c = joints[j].child.v;
+    if (c == 0) throw_bad_input("ground cannot be a joint's child", {.object = joints[j].name});
+    if (child_of[c] >= 0)
+      throw_bad_input("body is the child of two joints ('" + joints[child_of[c]].name + "' and '" +
+                          joints[j].name + "')",
+                      {.object = joints[j].name, .suggestion = "each body has one parent joint"});
+    child_of[c] = static_cast<int>(j);
+  }
+  std::vector<int> order;
+  std::vector<bool> placed(num_bodies, false);
+  placed[0] = true;
+  bool progress = true;
+  while (order.size() < joints.size() && progress) {
+    progress = false;
+    for (size_t j = 0; j < joints.size(); ++j) {
+      const Joint& joint = joints[j];
+      if (!placed[joint.child.v] && placed[joint.parent.v]) {
+        placed[joint.child.v] = true;
+        order.push_back(static_cast<int>(j));
+        progress = true;
+      }
+    }
+  }
+  if (order.size() < joints.size()) {
+    for (const auto& joint : joints)
+      if (!placed[joint.child.v])
+        throw_bad_input("joint is not connected to ground (a cycle, or a chain without ground)",
+                        {.object = joint.name});
+  }
+  return order;
+}
+
+Attachment compile_attachment(const AttachmentSpec& spec, const std::vector<Body>& bodies,
+                              const std::vector<Transform>& X_ground_body, bool in_ground,
+                              const std::string& muscle, const std::string& role) {
+  Attachment a;
+  a.body = resolve_body(bodies, spec.body, muscle, role);
+  if (spec.points.empty())
+    throw_bad_input(role + " has no landmark points", {.object = muscle});
+  if (!(spec.radius_m >= 0.0) || !std::isfinite(spec.radius_m))
+    throw_bad_input(role + " radius must be ≥ 0", {.object = muscle});
+  const Transform X_body_ground = X_ground_body[a.body.v].inverse();
+  a.p_body.resize(static_cast<Eigen::Index>(spec.points.size()), 3);
+  for (size_t i = 0; i < spec.points.size(); ++i) {
+    if (!spec.points[i].allFinite()) throw_bad_input(role + " point is not finite", {.object = muscle});
+    const Vec3 p = in_ground ? Vec3(X_body_ground * spec.points[i]) : spec.points[i];
+    a.p_body.row(static_cast<Eigen::Index>(i)) = p.transpose();
+  }
+  a.p_body_centroid = a.p_body.colwise().mean().transpose();
+  a.radius_m = spec.radius_m;
+  return a;
+}
+
+}  // namespace
+
+BodyIndex Model::find_body(const std::string& n) const { return BodyIndex{find_by_name(bodies, n)}; }
+CoordinateIndex Model::find_coordinate(const std::string& n) const {
+  return CoordinateIndex{find_by_name(coordinates, n)};
+}
+MuscleIndex Model::find_muscle(const std::string& n) const { return MuscleIndex{find_by_name(muscles, n)}; }
+
+std::vector<Transform> calc_body_transforms(const Model& model, const VecX& q) {
+  if (q.size() != model.num_coordinates())
+    throw_internal("calc_body_transforms: q has " + std::to_string(q.size()) + " values, expected " +
+                   std::to_string(model.num_coordinates()));
+  std::vector<Transform> X(model.bodies.size(), Transform::Identity());
+  for (const Joint& j : model.joints) {
+    const double* qj = j.num_coordinates > 0 ? q.data() + j.first_coordinate.v : nullptr;
+    X[j.child.v] = X[j.parent.v] * j.X_parent_F * j.kinematics->calc_X_F_M(qj) * j.X_child_M.inverse();
+  }
+  return X;
+}
+
+Model compile(const SceneSpec& spec, const Registry& registry) {
+  Model model;
+  model.name = spec.name;
+  const bool in_ground = spec.geometry_frame == GeometryFrame::ground;
+
+  // Bodies (ground first).
+  model.bodies.push_back(Body{.name = "ground"});
+  for (const SceneBodySpec& b : spec.bodies) {
+    if (b.name.empty() || b.name == "ground")
+      throw_bad_input("a body needs a unique name other than 'ground'", {.object = b.name});
+    if (find_by_name(model.bodies, b.name) >= 0)
+      throw_bad_input("duplicate body name", {.object = b.name});
+    model.bodies.push_back(compile_body(b));
+  }
+
+  // Joints, unordered first; then ordered parents-first with their coordinates.
+  std::vector<Joint> joints;
+  for (const SceneJointSpec& js : spec.joints) {
+    Joint j;
+    j.name = js.name;
+    j.type = js.type;
+    j.parent = resolve_body(model.bodies, js.parent, js.name, "joint parent");
+    j.child = resolve_body(model.bodies, js.child, js.name, "joint child");
+    j.X_parent_F = js.X_parent_F;
+    j.X_child_M = js.X_child_M;
+    const JointFactory& factory =
+        registry.joint_types.get(js.type, {.object = js.name});
+    j.kinematics = factory(js);
+    j.num_coordinates = j.kinematics->get_num_coordinates();
+    if (static_cast<int>(js.coordinates.size()) != j.num_coordinates)
+      throw_bad_input("joint type '" + js.type + "' has " + std::to_string(j.num_coordinates) +
+                          " coordinates but " + std::to_string(js.coordinates.size()) + " are given",
+                      {.object = js.name});
+    joints.push_back(std::move(j));
+  }
+  const std::vector<int> order = order_joints(joints, model.num_bodies());
+  for (int jo : order) {
+    Joint& j = joints[jo];
+    const SceneJointSpec& js = spec.joints[jo];
+    j.first_coordinate = CoordinateIndex{model.num_coordinates()};
+    for (int k = 0; k < j.num_coordinates; ++k) {
+      const SceneCoordinateSpec& cs = js.coordinates[k];
+      if (cs.name.empty() || find_by_name(model.coordinates, cs.name) >= 0)
+        throw_bad_input("coordinate names must be unique and non-empty", {.object = js.name + "/" + cs.name});
+      if (!(cs.range_min <= cs.range_max))
+        throw_bad_input("coordinate range is empty", {.object = cs.name});
+      if (cs.default_value < cs.range_min || cs.default_value > cs.range_max)
+        throw_bad_input("coordinate default lies outside its range", {.object = cs.name});
+      model.coordinates.push_back(Coordinate{cs.name, JointIndex{static_cast<int32_t>(model.joints.size())},
+                                             j.kinematics->is_rotational(k), cs.default_value,
+                                             cs.range_min, cs.range_max});
+    }
+    model.bodies[j.child.v].joint = JointIndex{static_cast<int32_t>(model.joints.size())};
+    model.joints.push_back(std::move(j));
+  }
+  for (size_t b = 1; b < model.bodies.size(); ++b)
+    if (!model.bodies[b].joint.valid())
+      throw_bad_input("body has no joint connecting it to the skeleton", {.object = model.bodies[b].name,
+                      .suggestion = "add a joint with this body as child ('weld' to fix it)"});
+  model.default_q.resize(model.num_coordinates());
+  for (int c = 0; c < model.num_coordinates(); ++c) model.default_q[c] = model.coordinates[c].default_value;
+  model.X_ground_body_default = calc_body_transforms(model, model.default_q);
+
+  // Body meshes given in ground at the default pose: move them into their body frames.
+  if (in_ground) {
+    for (size_t b = 1; b < model.bodies.size(); ++b) {
+      Body& body = model.bodies[b];
+      if (body.mesh.V.rows() == 0) continue;
+      const Transform X_body_ground = model.X_ground_body_default[b].inverse();
+      body.mesh.V = ((body.mesh.V * X_body_ground.linear().transpose()).rowwise() +
+                     X_body_ground.translation().transpose()).eval();
+      const Mat3 R = X_body_ground.linear();
+      if (!spec.bodies[b - 1].center_of_mass) body.center_of_mass = X_body_ground * body.center_of_mass;
+      if (!spec.bodies[b - 1].inertia) body.inertia = R * body.inertia * R.transpose();
+    }
+  }
+
+  // Muscles: attachments, via points, actuator, then the representation (needs the rest of the Model).
+  for (const MuscleSpec& ms : spec.muscles) {
+    if (ms.name.empty() || find_by_name(model.muscles, ms.name) >= 0)
+      throw_bad_input("muscle names must be unique and non-empty", {.object = ms.name});
+    Muscle m;
+    m.name = ms.name;
+    m.representation_name = ms.representation;
+    registry.muscle_representations.get(ms.representation, {.object = ms.name});
+    m.origin = compile_attachment(ms.origin, model.bodies, model.X_ground_body_default, in_ground, ms.name, "origin");
+    m.insertion = compile_attachment(ms.insertion, model.bodies, model.X_ground_body_default, in_ground, ms.name,
+                                     "insertion");
+    for (const ViaPointSpec& v : ms.via_points) {
+      ViaPoint vp;
+      vp.body = resolve_body(model.bodies, v.body, ms.name, "via point");
+      vp.p_body = in_ground ? Vec3(model.X_ground_body_default[vp.body.v].inverse() * v.point) : v.point;
+      m.via_points.push_back(vp);
+    }
+    if (ms.mesh) {
+      m.rest_mesh = *ms.mesh;
+      try {
+        m.rest_volume_m3 = calc_mass_properties(m.rest_mesh).volume_m3;
+      } catch (const Error& e) {
+        throw e.with_object(ms.name);
+      }
+      if (!(m.rest_volume_m3 > 0.0))
+        throw_bad_input("muscle mesh encloses a non-positive volume: it is open or oriented inward",
+                        {.file = ms.mesh_file.string(), .object = ms.name});
+    }
+    if (!(ms.activation >= 0.0 && ms.activation <= 1.0))
+      throw_bad_input("activation must lie in [0, 1]", {.object = ms.name});
+    m.activation = ms.activation;
+    m.actuator_type = ms.actuator.type;
+    m.actuator_spec = ms.actuator;
+    try {
+      m.actuator = registry.actuators.get(ms.actuator.type, {.object = ms.name})(ms);
+    } catch (const Error& e) {
+      throw e.with_object(ms.name);
+    }
+    m.fibre_template = ms.fibre_template;
+    m.rest_fibres = ms.rest_fibres;
+    m.options = ms.options;
+    model.muscles.push_back(std::move(m));
+  }
+  for (size_t i = 0; i < spec.muscles.size(); ++i) {
+    const auto& factory = registry.muscle_representations.get(spec.muscles[i].representation);
+    try {
+      auto rep = factory(model, MuscleIndex{static_cast<int32_t>(i)});
+      model.muscles[i].representation = std::move(rep);
+    } catch (const Error& e) {
+      throw e.with_object(spec.muscles[i].name);
+    }
+  }
+  return model;
+}
+
+}  // namespace fascicle

@@ -1,0 +1,100 @@
+// The stages of a frame: pose → action lines → forces → muscle geometry.
+#include "fascicle/scene/state.hpp"
+
+#include "fascicle/core/error.hpp"
+#include "fascicle/core/parallel.hpp"
+
+#include <cmath>
+
+namespace fascicle {
+namespace {
+
+void require_stage(const State& s, Stage needed, const char* what) {
+  if (static_cast<int>(s.stage) < static_cast<int>(needed))
+    throw_internal(std::string(what) + " called before the previous stage was computed");
+}
+
+// Runs body(m) for every muscle in parallel; an error names the muscle.
+template <class Body>
+void for_each_muscle(const Model& model, const Body& body) {
+  parallel_for(model.muscles.size(), [&](std::size_t m) {
+    try {
+      body(static_cast<int>(m));
+    } catch (const Error& e) {
+      throw e.with_object(model.muscles[m].name);
+    }
+  });
+}
+
+}  // namespace
+
+State make_state(const Model& model) {
+  State s;
+  s.q = model.default_q;
+  s.X_ground_body.assign(model.bodies.size(), Transform::Identity());
+  s.muscles.resize(model.muscles.size());
+  return s;
+}
+
+void calc_pose(const Model& model, State& state) {
+  if (!state.q.allFinite()) throw_numerical("coordinate values are not finite");
+  state.X_ground_body = calc_body_transforms(model, state.q);
+  state.muscles.resize(model.muscles.size());
+  state.stage = Stage::pose;
+}
+
+void calc_action_lines(const Model& model, State& state) {
+  require_stage(state, Stage::pose, "calc_action_lines");
+  for_each_muscle(model, [&](int m) {
+    const Muscle& muscle = model.muscles[m];
+    MuscleFrame& out = state.muscles[m];
+    const auto n = static_cast<Eigen::Index>(muscle.via_points.size() + 2);
+    out.action_line.resize(n, 3);
+    out.action_line_bodies.resize(n);
+    const auto put = [&](Eigen::Index i, BodyIndex b, const Vec3& p_body) {
+      out.action_line.row(i) = (state.X_ground_body[b.v] * p_body).transpose();
+      out.action_line_bodies[i] = b;
+    };
+    put(0, muscle.origin.body, muscle.origin.p_body_centroid);
+    for (size_t v = 0; v < muscle.via_points.size(); ++v)
+      put(static_cast<Eigen::Index>(v + 1), muscle.via_points[v].body, muscle.via_points[v].p_body);
+    put(n - 1, muscle.insertion.body, muscle.insertion.p_body_centroid);
+    double length = 0.0;
+    for (Eigen::Index i = 0; i + 1 < n; ++i)
+      length += (out.action_line.row(i + 1) - out.action_line.row(i)).norm();
+    out.musculotendon_length_m = length;
+  });
+  state.stage = Stage::action_lines;
+}
+
+void calc_forces(const Model& model, State& state) {
+  require_stage(state, Stage::action_lines, "calc_forces");
+  for_each_muscle(model, [&](int m) {
+    const Muscle& muscle = model.muscles[m];
+    MuscleFrame& out = state.muscles[m];
+    out.hill = MuscleOutputs{};
+    if (!muscle.actuator) return;
+    out.hill = muscle.actuator->calc_outputs(muscle.activation, out.musculotendon_length_m);
+    if (!std::isfinite(out.hill.tendon_force_N))
+      throw_numerical("the musculotendon equilibrium gave a non-finite tendon force");
+  });
+  state.stage = Stage::forces;
+}
+
+void calc_muscle_geometry(const Model& model, State& state) {
+  require_stage(state, Stage::forces, "calc_muscle_geometry");
+  for_each_muscle(model, [&](int m) {
+    MuscleFrame& out = state.muscles[m];
+    model.muscles[m].representation->calc_geometry(model, MuscleIndex{m}, state, out);
+  });
+  state.stage = Stage::geometry;
+}
+
+void forward(const Model& model, State& state) {
+  calc_pose(model, state);
+  calc_action_lines(model, state);
+  calc_forces(model, state);
+  calc_muscle_geometry(model, state);
+}
+
+}  // namespace fascicle
