@@ -13,6 +13,7 @@ struct Invocation {
 };
 
 void add_demo_commands(CLI::App& app, Invocation& run);  // cmd_demo.cpp
+void add_muscle_commands(CLI::App& app, Invocation& run);  // cmd_muscle.cpp
 
 
 }  // namespace fascicle::cli
