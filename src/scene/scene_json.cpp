@@ -1,0 +1,260 @@
+// Scene JSON → SceneSpec: schema validation, name references, unit conversion, mesh loading.
+#include "fascicle/scene/scene_json.hpp"
+
+#include "fascicle/core/error.hpp"
+#include "fascicle/core/units.hpp"
+#include "fascicle/io/mesh_io.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <Eigen/Geometry>
+#include <fstream>
+#include <sstream>
+
+namespace fascicle {
+
+using nlohmann::json;
+
+SchemaNode get_scene_schema(const Registry& registry) {
+  using namespace schema;
+  const SchemaNode length = number(0.0);
+  const SchemaNode coordinate = object({
+      required("name", string()),
+      optional("default", number()),
+      optional("range", array(number(), 2)),
+  });
+  const SchemaNode body = object({
+      required("name", string()),
+      optional("mesh", string()),
+      optional("mass", number(0.0)),
+      optional("center_of_mass", vec3()),
+      optional("inertia", array(number(), 6)),
+      optional("density", number(1.0)),
+  });
+  const SchemaNode joint = object({
+      required("name", string()),
+      required("type", one_of(registry.joint_types.get_names())),
+      required("parent", reference("body")),
+      required("child", reference("body")),
+      optional("location_in_parent", vec3()),
+      optional("orientation_in_parent", vec3()),
+      optional("location_in_child", vec3()),
+      optional("orientation_in_child", vec3()),
+      optional("axis", vec3()),
+      optional("coordinates", array(coordinate)),
+  });
+  const SchemaNode attachment = object({
+      required("body", reference("body")),
+      required("points", array(vec3(), 1)),
+      optional("radius", length),
+  });
+  const SchemaNode actuator = object({
+      optional("type", one_of(registry.actuators.get_names())),
+      optional("model", one_of({"thelen", "millard", "degroote"})),
+      optional("max_isometric_force", number(0.0)),
+      optional("optimal_fiber_length", number(0.0)),
+      optional("tendon_slack_length", number(0.0)),
+      optional("pennation_angle", number(0.0, 1.57)),
+      optional("rigid_tendon", boolean()),
+  });
+  const SchemaNode muscle = object({
+      required("name", string()),
+      optional("representation", one_of(registry.muscle_representations.get_names())),
+      optional("mesh", string()),
+      required("origin", attachment),
+      required("insertion", attachment),
+      optional("via_points", array(object({required("body", reference("body")), required("point", vec3())}))),
+      optional("actuator", actuator),
+      optional("activation", number(0.0, 1.0)),
+      optional("fibre_template", one_of({"parallel", "pennate", "bipennate", "curved", "fanned"})),
+      optional("options", SchemaNode{.type = JsonType::object}),
+  });
+  return object({
+      required("fascicle_scene", integer(1, 1)),
+      optional("name", string()),
+      optional("units", one_of({"m", "cm", "mm"})),
+      optional("geometry_frame", one_of({"body", "ground"})),
+      required("bodies", array(body)),
+      required("joints", array(joint)),
+      optional("muscles", array(muscle)),
+      optional("motion", object({required("file", string()), optional("frame_rate", number(1e-6))})),
+      optional("outputs", array(one_of(registry.writers.get_names()))),
+  });
+}
+
+namespace {
+
+Vec3 get_vec3(const json& v) { return Vec3(v[0].get<double>(), v[1].get<double>(), v[2].get<double>()); }
+
+// Body-fixed x-y-z rotation (OpenSim's orientation convention), radians.
+Mat3 rotation_xyz(const Vec3& r) {
+  return (Eigen::AngleAxisd(r.x(), Vec3::UnitX()) * Eigen::AngleAxisd(r.y(), Vec3::UnitY()) *
+          Eigen::AngleAxisd(r.z(), Vec3::UnitZ()))
+      .toRotationMatrix();
+}
+
+struct Reader {
+  std::filesystem::path file;
+  std::filesystem::path folder;
+  double unit = 1.0;  // metres per file length unit
+
+  ErrorContext at(const std::string& pointer, std::string suggestion = {}) const {
+    return {.file = file.string(), .json_path = pointer, .suggestion = std::move(suggestion)};
+  }
+
+  TriMesh read_mesh_at(const std::string& name, const std::string& pointer, std::filesystem::path* resolved) const {
+    std::filesystem::path p(name);
+    if (p.is_relative()) p = folder / p;
+    *resolved = p;
+    if (!std::filesystem::exists(p))
+      throw_bad_input("mesh file '" + p.string() + "' does not exist at " + pointer,
+                      at(pointer, "paths are relative to the scene file's folder"));
+    try {
+      LengthUnit u = LengthUnit::metre;
+      if (unit == 1e-3) u = LengthUnit::millimetre;
+      if (unit == 1e-2) u = LengthUnit::centimetre;
+      return read_mesh(p, u);
+    } catch (const Error& e) {
+      ErrorContext ctx = e.context();
+      ctx.json_path = pointer;
+      throw Error(e.kind(), e.message() + " (mesh of " + pointer + ")", ctx);
+    }
+  }
+
+  Transform get_frame(const json& j, const char* location, const char* orientation) const {
+    Transform X = Transform::Identity();
+    if (j.contains(location)) X.translation() = unit * get_vec3(j.at(location));
+    if (j.contains(orientation)) X.linear() = rotation_xyz(get_vec3(j.at(orientation)));
+    return X;
+  }
+
+  AttachmentSpec get_attachment(const json& j) const {
+    AttachmentSpec a;
+    a.body = j.at("body").get<std::string>();
+    for (const auto& p : j.at("points")) a.points.push_back(unit * get_vec3(p));
+    a.radius_m = unit * j.value("radius", 0.0);
+    return a;
+  }
+};
+
+}  // namespace
+
+SceneSpec parse_scene(const std::string& text, const std::filesystem::path& path, const Registry& registry) {
+  json doc;
+  try {
+    doc = json::parse(text);
+  } catch (const json::parse_error& e) {
+    throw_bad_input(std::string("not valid JSON: ") + e.what(),
+                    {.file = path.string(), .suggestion = "check the syntax (a JSON linter shows the spot)"});
+  }
+  // Names that references may use, gathered leniently before validation.
+  NameTable names;
+  names["body"] = {"ground"};
+  if (doc.is_object() && doc.contains("bodies") && doc["bodies"].is_array())
+    for (const auto& b : doc["bodies"])
+      if (b.is_object() && b.contains("name") && b["name"].is_string()) names["body"].push_back(b["name"]);
+  validate_json(doc, get_scene_schema(registry), names, path.string());
+
+  Reader r{path, path.parent_path(), metres_per(parse_length_unit(doc.value("units", std::string("m"))))};
+  SceneSpec spec;
+  spec.source = path;
+  spec.name = doc.value("name", path.stem().string());
+  spec.geometry_frame = doc.value("geometry_frame", std::string("body")) == "ground" ? GeometryFrame::ground
+                                                                                      : GeometryFrame::body;
+  const auto& bodies = doc.at("bodies");
+  for (size_t i = 0; i < bodies.size(); ++i) {
+    const json& j = bodies[i];
+    const std::string ptr = "/bodies/" + std::to_string(i);
+    SceneBodySpec b;
+    b.name = j.at("name");
+    if (j.contains("mesh")) b.mesh = r.read_mesh_at(j.at("mesh"), ptr + "/mesh", &b.mesh_file);
+    if (j.contains("mass")) b.mass_kg = j.at("mass").get<double>();
+    if (j.contains("center_of_mass")) b.center_of_mass = r.unit * get_vec3(j.at("center_of_mass"));
+    if (j.contains("inertia")) {
+      const auto& I = j.at("inertia");  // Ixx, Iyy, Izz, Ixy, Ixz, Iyz (kg m²)
+      Mat3 M;
+      M << I[0], I[3], I[4], I[3], I[1], I[5], I[4], I[5], I[2];
+      b.inertia = M;
+    }
+    b.density_kg_per_m3 = j.value("density", b.density_kg_per_m3);
+    spec.bodies.push_back(std::move(b));
+  }
+  const auto& joints = doc.at("joints");
+  for (size_t i = 0; i < joints.size(); ++i) {
+    const json& j = joints[i];
+    SceneJointSpec js;
+    js.name = j.at("name");
+    js.type = j.at("type");
+    js.parent = j.at("parent");
+    js.child = j.at("child");
+    js.X_parent_F = r.get_frame(j, "location_in_parent", "orientation_in_parent");
+    js.X_child_M = r.get_frame(j, "location_in_child", "orientation_in_child");
+    if (j.contains("axis")) js.axis = get_vec3(j.at("axis"));
+    for (const auto& c : j.value("coordinates", json::array())) {
+      SceneCoordinateSpec cs;
+      cs.name = c.at("name");
+      cs.default_value = c.value("default", 0.0);
+      if (c.contains("range")) {
+        cs.range_min = c["range"][0];
+        cs.range_max = c["range"][1];
+      }
+      js.coordinates.push_back(cs);
+    }
+    spec.joints.push_back(std::move(js));
+  }
+  const json muscles = doc.value("muscles", json::array());
+  for (size_t i = 0; i < muscles.size(); ++i) {
+    const json& j = muscles[i];
+    const std::string ptr = "/muscles/" + std::to_string(i);
+    MuscleSpec m;
+    m.name = j.at("name");
+    m.representation = j.value("representation", m.representation);
+    if (j.contains("mesh")) m.mesh = r.read_mesh_at(j.at("mesh"), ptr + "/mesh", &m.mesh_file);
+    m.origin = r.get_attachment(j.at("origin"));
+    m.insertion = r.get_attachment(j.at("insertion"));
+    for (const auto& v : j.value("via_points", json::array()))
+      m.via_points.push_back({v.at("body"), r.unit * get_vec3(v.at("point"))});
+    if (j.contains("actuator")) {
+      const json& a = j.at("actuator");
+      m.actuator.type = a.value("type", m.actuator.type);
+      m.actuator.model = a.value("model", m.actuator.model);
+      m.actuator.max_isometric_force_N = a.value("max_isometric_force", m.actuator.max_isometric_force_N);
+      m.actuator.optimal_fiber_length_m = a.value("optimal_fiber_length", m.actuator.optimal_fiber_length_m);
+      m.actuator.tendon_slack_length_m = a.value("tendon_slack_length", m.actuator.tendon_slack_length_m);
+      m.actuator.pennation_at_optimal_rad = a.value("pennation_angle", m.actuator.pennation_at_optimal_rad);
+      m.actuator.rigid_tendon = a.value("rigid_tendon", m.actuator.rigid_tendon);
+    }
+    m.activation = j.value("activation", m.activation);
+    m.fibre_template = j.value("fibre_template", std::string());
+    for (const auto& [key, value] : j.value("options", json::object()).items()) {
+      if (!value.is_number())
+        throw_bad_input("muscle options must be numbers", r.at(ptr + "/options/" + escape_json_pointer(key)));
+      m.options[key] = value.get<double>();
+    }
+    spec.muscles.push_back(std::move(m));
+  }
+  if (doc.contains("motion")) {
+    MotionSpec motion;
+    std::filesystem::path p(doc["motion"].at("file").get<std::string>());
+    if (p.is_relative()) p = r.folder / p;
+    if (!std::filesystem::exists(p))
+      throw_bad_input("motion file '" + p.string() + "' does not exist at /motion/file",
+                      r.at("/motion/file", "paths are relative to the scene file's folder"));
+    motion.file = p;
+    motion.frame_rate_hz = doc["motion"].value("frame_rate", motion.frame_rate_hz);
+    spec.motion = motion;
+  }
+  for (const auto& w : doc.value("outputs", json::array())) spec.outputs.push_back({w.get<std::string>()});
+  return spec;
+}
+
+SceneSpec load_scene(const std::filesystem::path& path, const Registry& registry) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in)
+    throw_bad_input("cannot open the scene file", {.file = path.string(), .suggestion = "check the path"});
+  std::ostringstream text;
+  text << in.rdbuf();
+  return parse_scene(text.str(), path, registry);
+}
+
+}  // namespace fascicle
