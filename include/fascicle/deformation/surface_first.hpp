@@ -1,0 +1,193 @@
+// Surface-first muscle deformation (Kohout et al., seed 002 section 4): a muscle's closed surface is
+// bound to its action line in the rest pose; per frame, the differential (Laplacian) coordinates are
+// rotated by the action line's frames and the surface is solved for by Laplacian surface editing
+// (Sorkine et al. 2004) with the attachment areas following their bones, the enclosed volume held
+// exactly at its rest value, and vertices kept out of bones (beyond their rest-pose contact).
+//
+// Three pieces (geometry-central / fascicle style):
+//   - SurfaceBinding: built once in the rest pose by bind_surface(); immutable ("model").
+//   - SurfaceFirstSolver: per muscle; prefactorises the sparse system and keeps warm-start data
+//     (previous solution, active bone contacts) from frame to frame ("state").
+//   - deform_surface(): one-off solve of a single frame.
+// Method, equations and measured performance: docs/deformation.md. Units: metres, radians.
+#pragma once
+
+#include "fascicle/deformation/framed_line.hpp"
+#include "fascicle/deformation/mesh_operators.hpp"
+#include "fascicle/geometry/mesh_query.hpp"
+
+#include <limits>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace fascicle {
+
+// A set of surface vertices that moves rigidly with a bone (an origin or insertion area).
+struct AttachmentArea {
+  std::string name;           // e.g. "origin", "insertion" (for messages)
+  std::vector<int> vertices;  // rows of the rest surface's V
+};
+
+enum class SparseSolverKind { cholmod_supernodal, eigen_simplicial_ldlt };
+
+struct SurfaceFirstOptions {
+  LaplacianKind laplacian = LaplacianKind::cotangent;
+  SparseSolverKind sparse_solver = SparseSolverKind::cholmod_supernodal;
+  int line_samples = 64;  // samples of the action line (normalised arc length)
+  // Weight of the soft pull of every vertex towards its position carried rigidly by the action-line
+  // frame ("skinned" position), relative to the mean diagonal of L^T L. Keeps the belly following
+  // a wrapping line and makes the system definite without attachments. Must be > 0.
+  double line_weight = 1e-3;
+  // Weight of a bone-contact constraint relative to the mean diagonal of L^T L.
+  double contact_weight = 1e4;
+  double contact_margin_m = 1e-4;     // a contact vertex is held this far outside the bone
+  double contact_tolerance_m = 1e-5;  // depth beyond the rest depth that triggers a contact
+  int max_contact_rounds = 8;         // solve -> detect -> add/release rounds per frame
+  int max_volume_iterations = 10;     // Gauss-Newton iterations on the volume constraint
+  // Stop when the relative change of the volume gradient between iterations (the relative KKT
+  // residual of the constrained problem) is below this.
+  double stationarity_tolerance = 1e-6;
+  // A frame whose relative volume error exceeds this throws fascicle::Error (numerical).
+  double max_volume_error = 1e-4;
+};
+
+// Rest-pose binding of one muscle surface. Plain data built by bind_surface(); treat as immutable.
+struct SurfaceBinding {
+  std::string name;  // muscle name, used in error messages
+  SurfaceFirstOptions options;
+  TriMesh rest;                 // rest surface (closed, outward normals)
+  FramedLine rest_line;         // rest action line, resampled and framed
+  VecX vertex_s;                // per vertex: normalised arc length of the closest line point
+  Points3 offset_local;         // per vertex: (v - line point) in the line frame at s
+  Points3 delta_local;          // per vertex: differential coordinate (L V)_i in the line frame
+  std::vector<AttachmentArea> attachments;
+  std::vector<int> fixed_vertices;  // all attachment vertices (sorted)
+  std::vector<int> fixed_area;      // attachment area of each fixed vertex
+  std::vector<int> free_vertices;   // the other vertices (sorted)
+  std::vector<int> free_index;      // per vertex: index into free_vertices, or -1
+  SparseMatrix laplacian;           // #V x #V
+  SparseMatrix Lf_transpose;        // (L restricted to free columns)^T: #free x #V
+  SparseMatrix L_fixed;             // L restricted to fixed columns: #V x #fixed
+  SparseMatrix system;              // Lf^T Lf + line weight I (#free x #free, lower+upper)
+  double diagonal_scale = 0.0;      // mean diagonal of Lf^T Lf
+  double rest_volume_m3 = 0.0;
+  double size_m = 0.0;              // bounding-box diagonal of the rest surface
+  std::vector<VecX> rest_bone_depth;  // per bone, per vertex: depth inside the bone at rest (>= 0)
+
+  int num_bones() const { return static_cast<int>(rest_bone_depth.size()); }
+};
+
+// Bones a muscle must stay out of: meshes in their rest pose, in the same (world) frame as the
+// muscle's rest surface. Not owned; they must outlive bindings and solvers that use them.
+using BoneQueries = std::vector<const MeshQuery*>;
+
+// Binds a closed muscle surface to its rest action line (polyline, >= 2 points) and records the
+// attachment areas and the rest-pose depth of every vertex inside each bone. Throws fascicle::Error
+// (bad input) for an open or inward surface, bad or overlapping attachment indices, a degenerate
+// action line; (usage) for invalid options.
+SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_action_line,
+                            std::vector<AttachmentArea> attachments, const BoneQueries& bones,
+                            const SurfaceFirstOptions& options = {}, std::string name = {});
+
+// One frame's input.
+struct SurfaceFrameInput {
+  Points3 action_line;  // the action line this frame (world), any number (>= 2) of points
+  // Per attachment area, X_now_rest: the bone's motion from the rest pose (maps rest positions to
+  // this frame; X_world_bone(now) * X_world_bone(rest)^-1). Area 0's rotation also fixes the twist
+  // of the line frames about the line (identity when absent).
+  std::vector<Transform> attachment_motions;
+  // Alternative to attachment_motions: target positions of binding.fixed_vertices, in that order.
+  Points3 attachment_targets;
+  // Per bone, X_now_rest (empty: all bones at rest).
+  std::vector<Transform> bone_motions;
+};
+
+// What happened in a frame (NaN until solved).
+struct SurfaceFrameInfo {
+  double volume_m3 = std::numeric_limits<double>::quiet_NaN();
+  double relative_volume_error = std::numeric_limits<double>::quiet_NaN();  // |V - V0| / V0
+  double stationarity = std::numeric_limits<double>::quiet_NaN();  // final relative KKT residual
+  double volume_multiplier = std::numeric_limits<double>::quiet_NaN();      // lambda
+  double max_penetration_beyond_rest_m = 0.0;  // over bones and non-attachment vertices
+  int volume_iterations = 0;                   // linear solves for the volume constraint
+  int contact_rounds = 0;
+  int active_contacts = 0;
+  int factorisations = 0;
+};
+
+// Per-muscle solver: prefactorises the system once and refactorises (numerically only, same
+// pattern) when the set of bone contacts changes; warm-starts from the previous frame.
+class SurfaceFirstSolver {
+ public:
+  // `binding` and `bones` must outlive the solver; bones.size() == binding.num_bones().
+  SurfaceFirstSolver(const SurfaceBinding& binding, BoneQueries bones);
+  ~SurfaceFirstSolver();
+  SurfaceFirstSolver(SurfaceFirstSolver&&) noexcept;
+  SurfaceFirstSolver& operator=(SurfaceFirstSolver&&) = delete;
+  SurfaceFirstSolver(const SurfaceFirstSolver&) = delete;
+  SurfaceFirstSolver& operator=(const SurfaceFirstSolver&) = delete;
+
+  // Solves one frame; returns the deformed vertices (#V x 3, world). Throws fascicle::Error
+  // (bad input) for inconsistent input sizes, (numerical) when the volume cannot be held.
+  const Points3& calc_frame(const SurfaceFrameInput& input);
+
+  const Points3& get_vertices() const { return vertices_; }
+  const SurfaceFrameInfo& get_info() const { return info_; }
+  const SurfaceBinding& get_binding() const { return binding_; }
+  // Forget the warm start (previous solution and contacts).
+  void reset();
+
+  // A bone contact: vertex held at a point fixed in the bone's rest frame.
+  struct Contact {
+    int vertex = -1;
+    int bone = -1;
+    Vec3 target_rest = Vec3::Zero();  // in the bone's rest pose (world rest frame)
+    Vec3 normal_rest = Vec3::Zero();  // outward bone normal there
+  };
+  const std::vector<Contact>& get_contacts() const { return contacts_; }
+
+  struct Factor;  // the sparse Cholesky factor (defined in the .cpp; keeps CHOLMOD out of here)
+
+ private:
+  void factorise();
+  Points3 solve(const Eigen::MatrixXd& rhs) const;
+  int solve_volume(const Points3& rhs_free, const Points3& fixed, Points3& X);
+  bool update_contacts(const Points3& X, const std::vector<Transform>& bone_motions);
+
+  const SurfaceBinding& binding_;
+  BoneQueries bones_;
+  std::vector<Eigen::AlignedBox3d> bone_boxes_;
+  std::unique_ptr<Factor> factor_;
+  std::vector<Contact> contacts_;
+  std::vector<int> factorised_contacts_;  // free indices with a contact in the current factor
+  Points3 vertices_;
+  bool has_previous_ = false;
+  SurfaceFrameInfo info_;
+};
+
+// One-off: binds nothing new, builds a solver and solves a single frame.
+Points3 deform_surface(const SurfaceBinding& binding, const BoneQueries& bones,
+                       const SurfaceFrameInput& input, SurfaceFrameInfo* info = nullptr);
+
+// Depth of vertices inside a bone (moved by X_now_rest) beyond their rest depth.
+struct PenetrationInfo {
+  int vertices_inside = 0;
+  int vertices_beyond_rest = 0;  // deeper than at rest by more than 1e-9 m
+  double max_depth_m = 0.0;
+  double max_depth_beyond_rest_m = 0.0;
+};
+// `rest_depth` (per vertex, may be empty = all zero) and `skip` (per vertex, may be empty) as in
+// the binding. Checks every vertex exactly (no culling beyond the bone's bounding box).
+PenetrationInfo calc_bone_penetration(const Points3& V, const MeshQuery& bone,
+                                      const Transform& X_now_rest, const VecX& rest_depth = {},
+                                      const std::vector<int>& skip_vertices = {});
+
+// Muscle-muscle overlap: vertices of one surface inside another closed surface.
+struct OverlapInfo {
+  int vertices_inside = 0;
+  double max_depth_m = 0.0;
+};
+OverlapInfo calc_surface_overlap(const Points3& V, const MeshQuery& other);
+
+}  // namespace fascicle

@@ -1,0 +1,109 @@
+// Laplacians, enclosed volume, its gradient and the volume cubic (see mesh_operators.hpp).
+#include "fascicle/deformation/mesh_operators.hpp"
+
+#include "fascicle/core/error.hpp"
+
+#include <cmath>
+#include <vector>
+
+namespace fascicle {
+
+namespace {
+
+void check_indices(const TriMesh& mesh) {
+  if (mesh.F.size() > 0 && (mesh.F.minCoeff() < 0 || mesh.F.maxCoeff() >= mesh.V.rows()))
+    throw_bad_input("triangle index out of range in muscle surface");
+}
+
+// cot of the angle at a between (b - a) and (c - a); 0 for a degenerate corner
+double cot_at(const Vec3& a, const Vec3& b, const Vec3& c) {
+  const Vec3 u = b - a, v = c - a;
+  const double s = u.cross(v).norm();
+  return s > 0.0 ? u.dot(v) / s : 0.0;
+}
+
+}  // namespace
+
+SparseMatrix calc_laplacian(const TriMesh& mesh, LaplacianKind kind) {
+  check_indices(mesh);
+  const Eigen::Index n = mesh.V.rows();
+  std::vector<Eigen::Triplet<double>> t;
+  t.reserve(mesh.F.rows() * 12);
+  for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
+    for (int e = 0; e < 3; ++e) {
+      // edge (i, j) opposite corner k
+      const int i = mesh.F(f, (e + 1) % 3), j = mesh.F(f, (e + 2) % 3), k = mesh.F(f, e);
+      double w;
+      if (kind == LaplacianKind::cotangent) {
+        w = 0.5 * cot_at(mesh.V.row(k), mesh.V.row(i), mesh.V.row(j));
+      } else {
+        w = 0.5;  // each interior edge is seen by two faces
+      }
+      t.emplace_back(i, j, -w);
+      t.emplace_back(j, i, -w);
+      t.emplace_back(i, i, w);
+      t.emplace_back(j, j, w);
+    }
+  }
+  SparseMatrix L(n, n);
+  L.setFromTriplets(t.begin(), t.end());
+  return L;
+}
+
+double calc_enclosed_volume(const Points3& V, const Triangles& F, const Vec3& origin) {
+  double sum = 0.0;
+  for (Eigen::Index f = 0; f < F.rows(); ++f) {
+    const Vec3 a = V.row(F(f, 0)).transpose() - origin;
+    const Vec3 b = V.row(F(f, 1)).transpose() - origin;
+    const Vec3 c = V.row(F(f, 2)).transpose() - origin;
+    sum += a.dot(b.cross(c));
+  }
+  return sum / 6.0;
+}
+
+Points3 calc_volume_gradient(const Points3& V, const Triangles& F) {
+  Points3 G = Points3::Zero(V.rows(), 3);
+  for (Eigen::Index f = 0; f < F.rows(); ++f) {
+    const Vec3 a = V.row(F(f, 0)), b = V.row(F(f, 1)), c = V.row(F(f, 2));
+    // d/da [a.(b x c)] = b x c, and cyclically; translation-invariant form (b-a) x (c-a) summed
+    // gives the same total but this one is exact for the sum
+    G.row(F(f, 0)) += b.cross(c).transpose();
+    G.row(F(f, 1)) += c.cross(a).transpose();
+    G.row(F(f, 2)) += a.cross(b).transpose();
+  }
+  return G / 6.0;
+}
+
+std::array<double, 4> calc_volume_cubic(const Points3& X, const Points3& Y, const Triangles& F,
+                                        const Vec3& origin) {
+  std::array<double, 4> c{0.0, 0.0, 0.0, 0.0};
+  for (Eigen::Index f = 0; f < F.rows(); ++f) {
+    const Vec3 a = X.row(F(f, 0)).transpose() - origin, da = Y.row(F(f, 0));
+    const Vec3 b = X.row(F(f, 1)).transpose() - origin, db = Y.row(F(f, 1));
+    const Vec3 cc = X.row(F(f, 2)).transpose() - origin, dc = Y.row(F(f, 2));
+    const Vec3 bc = b.cross(cc), bdc = b.cross(dc), dbc = db.cross(cc), dbdc = db.cross(dc);
+    c[0] += a.dot(bc);
+    c[1] += da.dot(bc) + a.dot(dbc + bdc);
+    c[2] += da.dot(dbc + bdc) + a.dot(dbdc);
+    c[3] += da.dot(dbdc);
+  }
+  for (double& x : c) x /= 6.0;
+  return c;
+}
+
+double solve_volume_cubic(const std::array<double, 4>& c, double target) {
+  if (!(std::abs(c[1]) > 0.0)) return std::numeric_limits<double>::quiet_NaN();
+  double t = (target - c[0]) / c[1];
+  for (int it = 0; it < 50; ++it) {
+    const double r = c[0] + t * (c[1] + t * (c[2] + t * c[3])) - target;
+    const double d = c[1] + t * (2.0 * c[2] + 3.0 * t * c[3]);
+    if (!(std::abs(d) > 0.0)) return std::numeric_limits<double>::quiet_NaN();
+    const double step = r / d;
+    t -= step;
+    if (std::abs(step) <= 1e-15 * (1.0 + std::abs(t))) return t;
+  }
+  const double r = c[0] + t * (c[1] + t * (c[2] + t * c[3])) - target;
+  return std::abs(r) <= 1e-12 * std::abs(target) ? t : std::numeric_limits<double>::quiet_NaN();
+}
+
+}  // namespace fascicle

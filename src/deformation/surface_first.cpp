@@ -1,0 +1,463 @@
+// Surface-first deformation: binding, per-frame Laplacian editing with the exact volume constraint,
+// and bone contacts (see surface_first.hpp and docs/deformation.md).
+#include "fascicle/deformation/surface_first.hpp"
+
+#include "fascicle/core/error.hpp"
+
+#include <Eigen/CholmodSupport>
+#include <Eigen/SparseCholesky>
+
+#include <algorithm>
+#include <cmath>
+#include <fmt/format.h>
+
+namespace fascicle {
+
+namespace {
+
+ErrorContext muscle_context(const std::string& name, std::string suggestion = {}) {
+  return {.object = name, .suggestion = std::move(suggestion)};
+}
+
+double bbox_diagonal(const Points3& V) {
+  return (V.colwise().maxCoeff() - V.colwise().minCoeff()).norm();
+}
+
+// Scatters free-vertex rows and fixed-vertex rows into a full #V x 3 array.
+Points3 assemble(const SurfaceBinding& b, const Points3& free_rows, const Points3& fixed_rows) {
+  Points3 X(b.rest.V.rows(), 3);
+  for (std::size_t k = 0; k < b.free_vertices.size(); ++k) X.row(b.free_vertices[k]) = free_rows.row(k);
+  for (std::size_t k = 0; k < b.fixed_vertices.size(); ++k)
+    X.row(b.fixed_vertices[k]) = fixed_rows.row(k);
+  return X;
+}
+
+Points3 gather_free(const SurfaceBinding& b, const Points3& X) {
+  Points3 out(b.free_vertices.size(), 3);
+  for (std::size_t k = 0; k < b.free_vertices.size(); ++k) out.row(k) = X.row(b.free_vertices[k]);
+  return out;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// Binding
+
+SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_action_line,
+                            std::vector<AttachmentArea> attachments, const BoneQueries& bones,
+                            const SurfaceFirstOptions& options, std::string name) {
+  SurfaceBinding b;
+  b.name = std::move(name);
+  b.options = options;
+  b.rest = rest_surface;
+  const Eigen::Index n = rest_surface.V.rows();
+  if (!(options.line_weight > 0.0) || !(options.contact_weight > 0.0) || options.line_samples < 2 ||
+      options.max_contact_rounds < 1 || options.max_volume_iterations < 1)
+    throw_usage("invalid surface-first options (weights must be > 0, samples >= 2, rounds >= 1)",
+                muscle_context(b.name));
+  if (n < 4 || rest_surface.F.rows() < 4 || !rest_surface.V.allFinite())
+    throw_bad_input("muscle surface is empty or has non-finite coordinates", muscle_context(b.name));
+
+  // operators and volume
+  b.laplacian = calc_laplacian(rest_surface, options.laplacian);
+  b.size_m = bbox_diagonal(rest_surface.V);
+  const Vec3 centre = rest_surface.V.colwise().mean().transpose();
+  b.rest_volume_m3 = calc_enclosed_volume(rest_surface.V, rest_surface.F, centre);
+  if (!(b.rest_volume_m3 > 1e-12 * std::pow(b.size_m, 3)))
+    throw_bad_input(fmt::format("muscle surface encloses no positive volume ({:.3g} m^3)",
+                                b.rest_volume_m3),
+                    muscle_context(b.name, "the surface must be closed with outward normals; "
+                                           "repair it (fascicle mesh repair) first"));
+
+  // action line frames and per-vertex binding
+  b.rest_line = calc_framed_line(rest_action_line, options.line_samples,
+                                 calc_default_start_frame(rest_action_line));
+  const Points3 delta = b.laplacian * rest_surface.V;
+  b.vertex_s.resize(n);
+  b.offset_local.resize(n, 3);
+  b.delta_local.resize(n, 3);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const Vec3 v = rest_surface.V.row(i);
+    b.vertex_s[i] = find_closest_line_parameter(b.rest_line, v).s;
+    const LinePoint lp = calc_line_point(b.rest_line, b.vertex_s[i]);
+    const Mat3 Rt = lp.frame.toRotationMatrix().transpose();
+    b.offset_local.row(i) = (Rt * (v - lp.point)).transpose();
+    b.delta_local.row(i) = (Rt * delta.row(i).transpose()).transpose();
+  }
+
+  // attachment areas -> fixed and free vertex sets
+  std::vector<int> area_of(n, -1);
+  for (std::size_t a = 0; a < attachments.size(); ++a) {
+    if (attachments[a].vertices.empty())
+      throw_bad_input(fmt::format("attachment area '{}' has no vertices", attachments[a].name),
+                      muscle_context(b.name, "check that the area lies on the muscle surface"));
+    for (int v : attachments[a].vertices) {
+      if (v < 0 || v >= n)
+        throw_bad_input(fmt::format("attachment area '{}' has vertex {} out of range [0, {})",
+                                    attachments[a].name, v, n),
+                        muscle_context(b.name));
+      if (area_of[v] >= 0 && area_of[v] != static_cast<int>(a))
+        throw_bad_input(fmt::format("vertex {} belongs to attachment areas '{}' and '{}'", v,
+                                    attachments[area_of[v]].name, attachments[a].name),
+                        muscle_context(b.name, "attachment areas must not overlap"));
+      area_of[v] = static_cast<int>(a);
+    }
+  }
+  b.attachments = std::move(attachments);
+  b.free_index.assign(n, -1);
+  std::vector<int> fixed_index(n, -1);
+  for (int i = 0; i < n; ++i) {
+    if (area_of[i] >= 0) {
+      fixed_index[i] = static_cast<int>(b.fixed_vertices.size());
+      b.fixed_vertices.push_back(i);
+      b.fixed_area.push_back(area_of[i]);
+    } else {
+      b.free_index[i] = static_cast<int>(b.free_vertices.size());
+      b.free_vertices.push_back(i);
+    }
+  }
+  if (b.free_vertices.empty())
+    throw_bad_input("every vertex is in an attachment area; nothing to deform",
+                    muscle_context(b.name));
+
+  // split L by columns: L = Lf Pf + Lx Px
+  const int nf = static_cast<int>(b.free_vertices.size());
+  const int nx = static_cast<int>(b.fixed_vertices.size());
+  std::vector<Eigen::Triplet<double>> tf, tx;
+  for (int j = 0; j < b.laplacian.outerSize(); ++j)
+    for (SparseMatrix::InnerIterator it(b.laplacian, j); it; ++it) {
+      if (b.free_index[j] >= 0) tf.emplace_back(b.free_index[j], it.row(), it.value());
+      else tx.emplace_back(it.row(), fixed_index[j], it.value());
+    }
+  b.Lf_transpose.resize(nf, n);
+  b.Lf_transpose.setFromTriplets(tf.begin(), tf.end());
+  b.L_fixed.resize(n, nx);
+  b.L_fixed.setFromTriplets(tx.begin(), tx.end());
+
+  // normal-equation matrix Lf^T Lf + w_line I (the identity also puts every diagonal entry in the
+  // pattern, so contact weights never change the sparsity pattern)
+  SparseMatrix LtL = (b.Lf_transpose * b.Lf_transpose.transpose()).pruned();
+  b.diagonal_scale = LtL.diagonal().mean();
+  SparseMatrix I(nf, nf);
+  I.setIdentity();
+  b.system = LtL + (options.line_weight * b.diagonal_scale) * I;
+  b.system.makeCompressed();
+
+  // rest-pose depth inside every bone
+  for (const MeshQuery* bone : bones) {
+    if (!bone) throw_usage("null bone query", muscle_context(b.name));
+    VecX depth = VecX::Zero(n);
+    const InsideFlags inside = bone->calc_is_inside(rest_surface.V);
+    for (Eigen::Index i = 0; i < n; ++i)
+      if (inside[i]) depth[i] = bone->calc_closest_point(rest_surface.V.row(i)).distance;
+    b.rest_bone_depth.push_back(std::move(depth));
+  }
+  return b;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Solver
+
+struct SurfaceFirstSolver::Factor {
+  SparseMatrix K;                 // system + contact weights on the diagonal
+  std::vector<Eigen::Index> diag; // position of K(j, j) in K.valuePtr()
+  Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> cholmod;
+  Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower> ldlt;
+  SparseSolverKind kind = SparseSolverKind::cholmod_supernodal;
+};
+
+SurfaceFirstSolver::SurfaceFirstSolver(const SurfaceBinding& binding, BoneQueries bones)
+    : binding_(binding), bones_(std::move(bones)), factor_(std::make_unique<Factor>()) {
+  if (static_cast<int>(bones_.size()) != binding_.num_bones())
+    throw_usage(fmt::format("solver given {} bones but the binding was made with {}", bones_.size(),
+                            binding_.num_bones()),
+                muscle_context(binding_.name));
+  for (const MeshQuery* bone : bones_) {
+    const Points3& V = bone->get_mesh().V;
+    bone_boxes_.emplace_back(V.colwise().minCoeff().transpose(), V.colwise().maxCoeff().transpose());
+  }
+  Factor& f = *factor_;
+  f.kind = binding_.options.sparse_solver;
+  f.K = binding_.system;
+  f.diag.resize(f.K.cols());
+  for (int j = 0; j < f.K.outerSize(); ++j)
+    for (SparseMatrix::InnerIterator it(f.K, j); it; ++it)
+      if (it.row() == j) f.diag[j] = &it.valueRef() - f.K.valuePtr();
+  if (f.kind == SparseSolverKind::cholmod_supernodal) f.cholmod.analyzePattern(f.K);
+  else f.ldlt.analyzePattern(f.K);
+  factorise();
+  vertices_ = binding_.rest.V;
+}
+
+SurfaceFirstSolver::~SurfaceFirstSolver() = default;
+SurfaceFirstSolver::SurfaceFirstSolver(SurfaceFirstSolver&&) noexcept = default;
+
+void SurfaceFirstSolver::reset() {
+  contacts_.clear();
+  vertices_ = binding_.rest.V;
+  has_previous_ = false;
+  info_ = {};
+}
+
+// Numeric factorisation of K = system + w_c sum over contacts e_i e_i^T (pattern unchanged).
+void SurfaceFirstSolver::factorise() {
+  Factor& f = *factor_;
+  const double* base = binding_.system.valuePtr();
+  for (std::size_t j = 0; j < f.diag.size(); ++j) f.K.valuePtr()[f.diag[j]] = base[f.diag[j]];
+  const double wc = binding_.options.contact_weight * binding_.diagonal_scale;
+  factorised_contacts_.clear();
+  for (const Contact& c : contacts_) {
+    const int j = binding_.free_index[c.vertex];
+    f.K.valuePtr()[f.diag[j]] += wc;
+    factorised_contacts_.push_back(j);
+  }
+  std::sort(factorised_contacts_.begin(), factorised_contacts_.end());
+  bool ok;
+  if (f.kind == SparseSolverKind::cholmod_supernodal) {
+    f.cholmod.factorize(f.K);
+    ok = f.cholmod.info() == Eigen::Success;
+  } else {
+    f.ldlt.factorize(f.K);
+    ok = f.ldlt.info() == Eigen::Success;
+  }
+  if (!ok)
+    throw_numerical("sparse Cholesky factorisation of the Laplacian system failed",
+                    muscle_context(binding_.name, "check the surface for degenerate triangles or "
+                                                  "use the uniform Laplacian"));
+  ++info_.factorisations;
+}
+
+Points3 SurfaceFirstSolver::solve(const Eigen::MatrixXd& rhs) const {
+  const Factor& f = *factor_;
+  Eigen::MatrixXd x = f.kind == SparseSolverKind::cholmod_supernodal
+                          ? Eigen::MatrixXd(f.cholmod.solve(rhs))
+                          : Eigen::MatrixXd(f.ldlt.solve(rhs));
+  return x;
+}
+
+// Minimises the quadratic energy E(x) = 1/2 x^T K x - b^T x subject to V(x) = V0 (docs: "volume
+// step"). With X0 = K^-1 b and Y = K^-1 g(X_k), the iterate X_{k+1} = X0 + lambda Y lies on the
+// constraint exactly (lambda: root of the cubic V(X0 + lambda Y) = V0); at a fixed point
+// K x - b = lambda grad V(x), the KKT conditions. Returns the number of linear solves.
+int SurfaceFirstSolver::solve_volume(const Points3& rhs_free, const Points3& fixed, Points3& X) {
+  const SurfaceBinding& b = binding_;
+  const Triangles& F = b.rest.F;
+  const int nf = static_cast<int>(b.free_vertices.size());
+  const Vec3 centre = X.colwise().mean().transpose();
+
+  // first solve: the unconstrained minimiser and the direction for the warm-start gradient
+  Points3 g = gather_free(b, calc_volume_gradient(X, F));
+  Eigen::MatrixXd B(nf, 6);
+  B << rhs_free, g;
+  const Eigen::MatrixXd Z = solve(B);
+  const Points3 X0 = assemble(b, Z.leftCols(3), fixed);
+  Points3 Y = assemble(b, Z.rightCols(3), Points3::Zero(fixed.rows(), 3));
+  int solves = 1;
+  for (;;) {
+    const double lambda = solve_volume_cubic(calc_volume_cubic(X0, Y, F, centre), b.rest_volume_m3);
+    if (!std::isfinite(lambda))
+      throw_numerical("the volume constraint has no solution along the Gauss-Newton direction",
+                      muscle_context(b.name, "the frame's deformation is too large; check the "
+                                             "action line and attachment motions"));
+    X = X0 + lambda * Y;
+    info_.volume_multiplier = lambda;
+    const Points3 g_new = gather_free(b, calc_volume_gradient(X, F));
+    info_.stationarity = (g_new - g).norm() / g.norm();
+    if (info_.stationarity <= b.options.stationarity_tolerance ||
+        solves >= b.options.max_volume_iterations)
+      break;
+    g = g_new;
+    Y = assemble(b, solve(g), Points3::Zero(fixed.rows(), 3));
+    ++solves;
+  }
+  return solves;
+}
+
+// Adds contacts for vertices deeper inside a bone than at rest and releases contacts the rest of
+// the surface pulls away from the bone. Updates the penetration measure. Returns true on change.
+bool SurfaceFirstSolver::update_contacts(const Points3& X, const std::vector<Transform>& bone_motions) {
+  const SurfaceBinding& b = binding_;
+  const SurfaceFirstOptions& o = b.options;
+  bool changed = false;
+  std::vector<char> in_contact(X.rows(), 0);
+
+  // release
+  std::vector<Contact> kept;
+  for (const Contact& c : contacts_) {
+    const Transform T = bone_motions.empty() ? Transform::Identity() : bone_motions[c.bone];
+    const Vec3 t = T * c.target_rest;
+    const Vec3 nrm = T.linear() * c.normal_rest;
+    const Vec3 x = X.row(c.vertex);
+    if ((x - t).dot(nrm) > o.contact_tolerance_m) {
+      changed = true;
+    } else {
+      kept.push_back(c);
+      in_contact[c.vertex] = 1;
+    }
+  }
+  contacts_ = std::move(kept);
+
+  // detect
+  double worst = 0.0;
+  for (std::size_t k = 0; k < bones_.size(); ++k) {
+    const Transform T = bone_motions.empty() ? Transform::Identity() : bone_motions[k];
+    const Transform Tinv = T.inverse();
+    const Eigen::AlignedBox3d& box = bone_boxes_[k];
+    for (int i : b.free_vertices) {
+      const Vec3 p = Tinv * Vec3(X.row(i).transpose());
+      if (!box.contains(p)) continue;
+      if (!bones_[k]->calc_is_inside(p)) continue;
+      const ClosestPoint cp = bones_[k]->calc_closest_point(p);
+      const double allowed = b.rest_bone_depth[k][i];
+      const double beyond = cp.distance - allowed;
+      worst = std::max(worst, beyond);
+      if (in_contact[i] || beyond <= o.contact_tolerance_m) continue;
+      const Vec3 nrm = cp.distance > 0.0 ? Vec3((cp.point - p) / cp.distance) : Vec3::UnitZ();
+      contacts_.push_back({i, static_cast<int>(k), cp.point + nrm * (o.contact_margin_m - allowed), nrm});
+      in_contact[i] = 1;
+      changed = true;
+    }
+  }
+  info_.max_penetration_beyond_rest_m = worst;
+  return changed;
+}
+
+const Points3& SurfaceFirstSolver::calc_frame(const SurfaceFrameInput& input) {
+  const SurfaceBinding& b = binding_;
+  const Eigen::Index n = b.rest.V.rows();
+  const int nx = static_cast<int>(b.fixed_vertices.size());
+  const int nf = static_cast<int>(b.free_vertices.size());
+  const int factorisations_before = info_.factorisations;
+  info_ = {};
+  info_.factorisations = factorisations_before;
+
+  // check input sizes
+  const bool by_targets = input.attachment_targets.rows() > 0;
+  if (by_targets && input.attachment_targets.rows() != nx)
+    throw_bad_input(fmt::format("{} attachment targets given for {} attachment vertices",
+                                input.attachment_targets.rows(), nx),
+                    muscle_context(b.name));
+  if (!by_targets && input.attachment_motions.size() != b.attachments.size())
+    throw_bad_input(fmt::format("{} attachment motions given for {} attachment areas",
+                                input.attachment_motions.size(), b.attachments.size()),
+                    muscle_context(b.name));
+  if (!input.bone_motions.empty() && input.bone_motions.size() != bones_.size())
+    throw_bad_input(fmt::format("{} bone motions given for {} bones", input.bone_motions.size(),
+                                bones_.size()),
+                    muscle_context(b.name));
+
+  // the action line now, its twist fixed by the origin area's rotation
+  const Quat R_ref = input.attachment_motions.empty() ? Quat::Identity()
+                                                      : Quat(input.attachment_motions[0].linear());
+  const FramedLine line =
+      calc_framed_line(input.action_line, b.options.line_samples, R_ref * b.rest_line.frames[0]);
+
+  // skinned positions S and rotated differential coordinates D
+  Points3 S(n, 3), D(n, 3);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const LinePoint lp = calc_line_point(line, b.vertex_s[i]);
+    const Mat3 R = lp.frame.toRotationMatrix();
+    S.row(i) = (lp.point + R * b.offset_local.row(i).transpose()).transpose();
+    D.row(i) = (R * b.delta_local.row(i).transpose()).transpose();
+  }
+
+  // attachment positions
+  Points3 fixed(nx, 3);
+  if (by_targets) {
+    fixed = input.attachment_targets;
+  } else {
+    for (int k = 0; k < nx; ++k)
+      fixed.row(k) = (input.attachment_motions[b.fixed_area[k]] *
+                      Vec3(b.rest.V.row(b.fixed_vertices[k]).transpose()))
+                         .transpose();
+  }
+  if (!fixed.allFinite() || !S.allFinite())
+    throw_bad_input("non-finite action line or attachment positions", muscle_context(b.name));
+
+  // right-hand side without contacts: Lf^T (D - Lx X_fixed) + w_line S_free
+  const double wl = b.options.line_weight * b.diagonal_scale;
+  const double wc = b.options.contact_weight * b.diagonal_scale;
+  Points3 rhs_base = b.Lf_transpose * (D - b.L_fixed * fixed);
+  rhs_base += wl * gather_free(b, S);
+
+  // warm start: the previous solution (or the skinned shape) gives the first volume gradient
+  Points3 X = has_previous_ ? vertices_ : assemble(b, gather_free(b, S), fixed);
+  for (int round = 0; round < b.options.max_contact_rounds; ++round) {
+    std::vector<int> wanted;
+    for (const Contact& c : contacts_) wanted.push_back(b.free_index[c.vertex]);
+    std::sort(wanted.begin(), wanted.end());
+    if (wanted != factorised_contacts_) factorise();
+
+    Points3 rhs = rhs_base;
+    for (const Contact& c : contacts_) {
+      const Transform T = input.bone_motions.empty() ? Transform::Identity()
+                                                     : input.bone_motions[c.bone];
+      rhs.row(b.free_index[c.vertex]) += wc * (T * c.target_rest).transpose();
+    }
+    info_.volume_iterations += solve_volume(rhs, fixed, X);
+    ++info_.contact_rounds;
+    if (bones_.empty() || !update_contacts(X, input.bone_motions)) break;
+  }
+  info_.active_contacts = static_cast<int>(contacts_.size());
+  (void)nf;
+
+  // report and check the volume
+  info_.volume_m3 = calc_enclosed_volume(X, b.rest.F, X.colwise().mean().transpose());
+  info_.relative_volume_error = std::abs(info_.volume_m3 - b.rest_volume_m3) / b.rest_volume_m3;
+  if (!X.allFinite() || !(info_.relative_volume_error <= b.options.max_volume_error))
+    throw_numerical(fmt::format("volume not held: relative error {:.3g} (limit {:.3g})",
+                                info_.relative_volume_error, b.options.max_volume_error),
+                    muscle_context(b.name, "the frame's deformation is too large; check the "
+                                           "action line and attachment motions"));
+  vertices_ = std::move(X);
+  has_previous_ = true;
+  return vertices_;
+}
+
+Points3 deform_surface(const SurfaceBinding& binding, const BoneQueries& bones,
+                       const SurfaceFrameInput& input, SurfaceFrameInfo* info) {
+  SurfaceFirstSolver solver(binding, bones);
+  Points3 X = solver.calc_frame(input);
+  if (info) *info = solver.get_info();
+  return X;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Measures
+
+PenetrationInfo calc_bone_penetration(const Points3& V, const MeshQuery& bone,
+                                      const Transform& X_now_rest, const VecX& rest_depth,
+                                      const std::vector<int>& skip_vertices) {
+  std::vector<char> skip(V.rows(), 0);
+  for (int i : skip_vertices)
+    if (i >= 0 && i < V.rows()) skip[i] = 1;
+  const Points3& B = bone.get_mesh().V;
+  const Eigen::AlignedBox3d box(B.colwise().minCoeff().transpose(), B.colwise().maxCoeff().transpose());
+  const Transform Tinv = X_now_rest.inverse();
+  PenetrationInfo out;
+  for (Eigen::Index i = 0; i < V.rows(); ++i) {
+    if (skip[i]) continue;
+    const Vec3 p = Tinv * Vec3(V.row(i).transpose());
+    if (!box.contains(p) || !bone.calc_is_inside(p)) continue;
+    const double depth = bone.calc_closest_point(p).distance;
+    const double beyond = depth - (rest_depth.size() ? rest_depth[i] : 0.0);
+    ++out.vertices_inside;
+    out.max_depth_m = std::max(out.max_depth_m, depth);
+    if (beyond > 1e-9) ++out.vertices_beyond_rest;
+    out.max_depth_beyond_rest_m = std::max(out.max_depth_beyond_rest_m, beyond);
+  }
+  return out;
+}
+
+OverlapInfo calc_surface_overlap(const Points3& V, const MeshQuery& other) {
+  OverlapInfo out;
+  const InsideFlags inside = other.calc_is_inside(V);
+  for (Eigen::Index i = 0; i < V.rows(); ++i) {
+    if (!inside[i]) continue;
+    ++out.vertices_inside;
+    out.max_depth_m = std::max(out.max_depth_m, other.calc_closest_point(V.row(i)).distance);
+  }
+  return out;
+}
+
+}  // namespace fascicle

@@ -1,0 +1,168 @@
+// Surface-first deformation on procedural muscles: volume under bending, exact rigid motion,
+// bone contact (also when intersecting at rest), input errors.
+#include "fascicle/core/error.hpp"
+#include "fascicle/deformation/surface_first.hpp"
+#include "fascicle/geometry/primitives.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+namespace fascicle {
+namespace {
+
+constexpr double kRadius = 0.02, kHeight = 0.2;
+
+// A cylinder muscle along z in [-0.1, 0.1] m with the end caps (|z| > 0.09) as attachment areas.
+struct CylinderMuscle {
+  TriMesh mesh = make_cylinder(kRadius, kHeight, 32, 40);
+  std::vector<AttachmentArea> areas;
+  CylinderMuscle() {
+    areas = {{"origin", {}}, {"insertion", {}}};
+    for (int i = 0; i < mesh.V.rows(); ++i) {
+      if (mesh.V(i, 2) < -0.09) areas[0].vertices.push_back(i);
+      if (mesh.V(i, 2) > 0.09) areas[1].vertices.push_back(i);
+    }
+  }
+};
+
+Points3 straight_line(int points) {
+  Points3 L(points, 3);
+  for (int k = 0; k < points; ++k) L.row(k) << 0.0, 0.0, -0.1 + 0.2 * k / (points - 1);
+  return L;
+}
+
+Transform rotation_about_x(double angle, const Vec3& centre) {
+  Transform T = Transform::Identity();
+  T.translate(centre).rotate(Eigen::AngleAxisd(angle, Vec3::UnitX())).translate(-centre);
+  return T;
+}
+
+// A hinge at the origin, axis x: the upper half of the line and the insertion turn by `angle`.
+SurfaceFrameInput hinge_frame(double angle) {
+  SurfaceFrameInput in;
+  const Transform T = rotation_about_x(angle, Vec3::Zero());
+  in.action_line = straight_line(11);
+  for (int k = 6; k < 11; ++k) in.action_line.row(k) = (T * Vec3(in.action_line.row(k).transpose())).transpose();
+  in.attachment_motions = {Transform::Identity(), T};
+  return in;
+}
+
+TEST(SurfaceFirst, RestPoseIsReproducedExactly) {
+  const CylinderMuscle m;
+  const SurfaceBinding b = bind_surface(m.mesh, straight_line(2), m.areas, {});
+  SurfaceFirstSolver solver(b, {});
+  const Points3& X = solver.calc_frame(hinge_frame(0.0));
+  EXPECT_LT((X - m.mesh.V).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT(solver.get_info().relative_volume_error, 1e-13);
+}
+
+TEST(SurfaceFirst, HingeBendKeepsVolume) {
+  const CylinderMuscle m;
+  const SurfaceBinding b = bind_surface(m.mesh, straight_line(2), m.areas, {});
+  SurfaceFirstSolver solver(b, {});
+  double max_error = 0.0, max_lambda = 0.0;
+  for (int frame = 0; frame <= 12; ++frame) {
+    const double angle = (M_PI / 2.0) * frame / 12.0;  // 0 -> 90 degrees
+    const SurfaceFrameInput in = hinge_frame(angle);
+    const Points3& X = solver.calc_frame(in);
+    const SurfaceFrameInfo& info = solver.get_info();
+    max_error = std::max(max_error, info.relative_volume_error);
+    max_lambda = std::max(max_lambda, std::abs(info.volume_multiplier));
+    EXPECT_LE(info.stationarity, 1e-6) << "frame " << frame;
+    // the volume computed independently of the solver
+    const double V = calc_enclosed_volume(X, m.mesh.F, Vec3::Zero());
+    EXPECT_NEAR(V / b.rest_volume_m3, 1.0, 1e-4) << "frame " << frame;
+    // attachment vertices follow their bones exactly
+    for (int i : m.areas[1].vertices)
+      EXPECT_LT((X.row(i).transpose() - in.attachment_motions[1] * Vec3(m.mesh.V.row(i).transpose())).norm(), 1e-12);
+    for (int i : m.areas[0].vertices) EXPECT_LT((X.row(i) - m.mesh.V.row(i)).norm(), 1e-12);
+  }
+  EXPECT_LT(max_error, 1e-10);
+  // the constraint is active: without it a bend loses volume, so the multiplier is not zero
+  EXPECT_GT(max_lambda, 0.0);
+  // the bend itself: the middle of the muscle at 90 degrees lies around the hinge, not straight
+  const Points3& X = solver.get_vertices();
+  const double top_y = X.col(1).minCoeff();
+  EXPECT_LT(top_y, -0.08);  // the insertion end turned towards -y (rotation +90 deg about x)
+}
+
+TEST(SurfaceFirst, RigidMotionOfAllHandlesIsExact) {
+  const CylinderMuscle m;
+  const SurfaceBinding b = bind_surface(m.mesh, straight_line(5), m.areas, {});
+  SurfaceFirstSolver solver(b, {});
+  // first a bent frame (so the warm start is not the answer), then a rigid motion
+  solver.calc_frame(hinge_frame(0.7));
+  Transform T = Transform::Identity();
+  T.translate(Vec3(0.31, -0.12, 0.05)).rotate(Eigen::AngleAxisd(1.1, Vec3(0.3, -0.5, 0.8).normalized()));
+  SurfaceFrameInput in;
+  in.action_line = straight_line(7);
+  for (int k = 0; k < 7; ++k) in.action_line.row(k) = (T * Vec3(in.action_line.row(k).transpose())).transpose();
+  in.attachment_motions = {T, T};
+  const Points3& X = solver.calc_frame(in);
+  double err = 0.0;
+  for (int i = 0; i < X.rows(); ++i)
+    err = std::max(err, (X.row(i).transpose() - T * Vec3(m.mesh.V.row(i).transpose())).norm());
+  EXPECT_LT(err, 1e-9);
+  EXPECT_LT(solver.get_info().relative_volume_error, 1e-12);
+}
+
+TEST(SurfaceFirst, UniformLaplacianAndLdltAgreeOnVolume) {
+  const CylinderMuscle m;
+  SurfaceFirstOptions o;
+  o.laplacian = LaplacianKind::uniform;
+  o.sparse_solver = SparseSolverKind::eigen_simplicial_ldlt;
+  const SurfaceBinding b = bind_surface(m.mesh, straight_line(2), m.areas, {}, o);
+  SurfaceFrameInfo info;
+  const Points3 X = deform_surface(b, {}, hinge_frame(1.0), &info);
+  EXPECT_LT(info.relative_volume_error, 1e-10);
+  EXPECT_NEAR(calc_enclosed_volume(X, m.mesh.F, Vec3::Zero()) / b.rest_volume_m3, 1.0, 1e-10);
+}
+
+TEST(SurfaceFirst, CotangentLaplacianAnnihilatesLinearFunctions) {
+  const TriMesh mesh = make_icosphere(0.03, 3);
+  for (LaplacianKind kind : {LaplacianKind::cotangent, LaplacianKind::uniform}) {
+    const SparseMatrix L = calc_laplacian(mesh, kind);
+    EXPECT_LT((L * VecX::Ones(mesh.V.rows())).cwiseAbs().maxCoeff(), 1e-12);
+    EXPECT_LT((SparseMatrix(L.transpose()) - L).norm(), 1e-12);
+  }
+  // cotangent: sum_i x_i . (L x)_i = 2 * Dirichlet energy of the coordinate functions = 2 * area
+  // (for a closed surface, sum over coordinates of |grad x|^2 integrated is 2 A)
+  const SparseMatrix L = calc_laplacian(mesh, LaplacianKind::cotangent);
+  double e = 0.0;
+  for (int c = 0; c < 3; ++c) e += mesh.V.col(c).dot(L * mesh.V.col(c));
+  double area = 0.0;
+  for (int f = 0; f < mesh.F.rows(); ++f)
+    area += 0.5 * (mesh.V.row(mesh.F(f, 1)) - mesh.V.row(mesh.F(f, 0)))
+                      .cross(mesh.V.row(mesh.F(f, 2)) - mesh.V.row(mesh.F(f, 0)))
+                      .norm();
+  EXPECT_NEAR(e, 2.0 * area, 1e-12 * area);
+}
+
+TEST(SurfaceFirst, VolumeGradientMatchesFiniteDifferences) {
+  TriMesh mesh = make_ellipsoid(Vec3(0.02, 0.03, 0.05), 2);
+  const Points3 G = calc_volume_gradient(mesh.V, mesh.F);
+  // V is linear in each single coordinate, so central differences are exact up to rounding
+  // (about eps * V / h): a large step is the accurate choice.
+  const double h = 1e-4;
+  for (int i : {0, 7, 41, 100}) {
+    for (int c = 0; c < 3; ++c) {
+      Points3 Vp = mesh.V, Vm = mesh.V;
+      Vp(i, c) += h;
+      Vm(i, c) -= h;
+      const double fd = (calc_enclosed_volume(Vp, mesh.F, Vec3::Zero()) -
+                         calc_enclosed_volume(Vm, mesh.F, Vec3::Zero())) / (2 * h);
+      EXPECT_NEAR(G(i, c), fd, 1e-9 * G.cwiseAbs().maxCoeff());
+    }
+  }
+  // the cubic along a direction equals the volume there
+  Points3 Y = Points3::Random(mesh.V.rows(), 3) * 0.01;
+  const auto c = calc_volume_cubic(mesh.V, Y, mesh.F, Vec3(0.001, 0.0, 0.0));
+  for (double t : {-1.3, 0.4, 2.0}) {
+    const double V = calc_enclosed_volume(mesh.V + t * Y, mesh.F, Vec3::Zero());
+    EXPECT_NEAR(c[0] + t * (c[1] + t * (c[2] + t * c[3])), V, 1e-15);
+  }
+}
+
+}  // namespace
+}  // namespace fascicle
