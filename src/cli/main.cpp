@@ -26,6 +26,7 @@ int main(int argc, char** argv) {
   fascicle::cli::Invocation run;
   fascicle::cli::add_demo_commands(app, run);
   fascicle::cli::add_muscle_commands(app, run);
+  fascicle::cli::add_solid_commands(app, run);
 
   try {
     app.parse(argc, argv);
