@@ -158,12 +158,36 @@ SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_act
 // ---------------------------------------------------------------------------------------------
 // Solver
 
-struct SurfaceFirstSolver::Factor {
-  SparseMatrix K;                 // system + contact weights on the diagonal
-  std::vector<Eigen::Index> diag; // position of K(j, j) in K.valuePtr()
+// One sparse Cholesky factorisation (CHOLMOD supernodal LL^T or Eigen's simplicial LDL^T).
+struct SparseCholesky {
   Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> cholmod;
   Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower> ldlt;
   SparseSolverKind kind = SparseSolverKind::cholmod_supernodal;
+
+  void analyse(const SparseMatrix& K) {
+    if (kind == SparseSolverKind::cholmod_supernodal) cholmod.analyzePattern(K);
+    else ldlt.analyzePattern(K);
+  }
+  bool factorise(const SparseMatrix& K) {
+    if (kind == SparseSolverKind::cholmod_supernodal) {
+      cholmod.factorize(K);
+      return cholmod.info() == Eigen::Success;
+    }
+    ldlt.factorize(K);
+    return ldlt.info() == Eigen::Success;
+  }
+  Eigen::MatrixXd solve(const Eigen::MatrixXd& rhs) const {
+    if (kind == SparseSolverKind::cholmod_supernodal) return cholmod.solve(rhs);
+    return ldlt.solve(rhs);
+  }
+};
+
+// The base factor (no contacts; computed once) and the factor with the current contacts' weights
+// added to the diagonal (same pattern: numeric refactorisation only).
+struct SurfaceFirstSolver::Factor {
+  SparseMatrix K;                  // system + contact weights on the diagonal
+  std::vector<Eigen::Index> diag;  // position of K(j, j) in K.valuePtr()
+  SparseCholesky base, with_contacts;
 };
 
 SurfaceFirstSolver::SurfaceFirstSolver(const SurfaceBinding& binding, BoneQueries bones)
@@ -177,15 +201,18 @@ SurfaceFirstSolver::SurfaceFirstSolver(const SurfaceBinding& binding, BoneQuerie
     bone_boxes_.emplace_back(V.colwise().minCoeff().transpose(), V.colwise().maxCoeff().transpose());
   }
   Factor& f = *factor_;
-  f.kind = binding_.options.sparse_solver;
+  f.base.kind = f.with_contacts.kind = binding_.options.sparse_solver;
   f.K = binding_.system;
   f.diag.resize(f.K.cols());
   for (int j = 0; j < f.K.outerSize(); ++j)
     for (SparseMatrix::InnerIterator it(f.K, j); it; ++it)
       if (it.row() == j) f.diag[j] = &it.valueRef() - f.K.valuePtr();
-  if (f.kind == SparseSolverKind::cholmod_supernodal) f.cholmod.analyzePattern(f.K);
-  else f.ldlt.analyzePattern(f.K);
-  factorise();
+  f.base.analyse(f.K);
+  if (!f.base.factorise(f.K))
+    throw_numerical("sparse Cholesky factorisation of the Laplacian system failed",
+                    muscle_context(binding_.name, "check the surface for degenerate triangles or "
+                                                  "use the uniform Laplacian"));
+  ++info_.factorisations;
   vertices_ = binding_.rest.V;
 }
 
@@ -212,15 +239,11 @@ void SurfaceFirstSolver::factorise() {
     factorised_contacts_.push_back(j);
   }
   std::sort(factorised_contacts_.begin(), factorised_contacts_.end());
-  bool ok;
-  if (f.kind == SparseSolverKind::cholmod_supernodal) {
-    f.cholmod.factorize(f.K);
-    ok = f.cholmod.info() == Eigen::Success;
-  } else {
-    f.ldlt.factorize(f.K);
-    ok = f.ldlt.info() == Eigen::Success;
+  if (!analysed_contacts_) {
+    f.with_contacts.analyse(f.K);
+    analysed_contacts_ = true;
   }
-  if (!ok)
+  if (!f.with_contacts.factorise(f.K))
     throw_numerical("sparse Cholesky factorisation of the Laplacian system failed",
                     muscle_context(binding_.name, "check the surface for degenerate triangles or "
                                                   "use the uniform Laplacian"));
@@ -229,10 +252,7 @@ void SurfaceFirstSolver::factorise() {
 
 Points3 SurfaceFirstSolver::solve(const Eigen::MatrixXd& rhs) const {
   const Factor& f = *factor_;
-  Eigen::MatrixXd x = f.kind == SparseSolverKind::cholmod_supernodal
-                          ? Eigen::MatrixXd(f.cholmod.solve(rhs))
-                          : Eigen::MatrixXd(f.ldlt.solve(rhs));
-  return x;
+  return contacts_.empty() ? f.base.solve(rhs) : f.with_contacts.solve(rhs);
 }
 
 // Minimises the quadratic energy E(x) = 1/2 x^T K x - b^T x subject to V(x) = V0 (docs: "volume
@@ -380,13 +400,16 @@ const Points3& SurfaceFirstSolver::calc_frame(const SurfaceFrameInput& input) {
   Points3 rhs_base = b.Lf_transpose * (D - b.L_fixed * fixed);
   rhs_base += wl * gather_free(b, S);
 
-  // warm start: the previous solution (or the skinned shape) gives the first volume gradient
+  // warm start: the previous solution (or the skinned shape) gives the first volume gradient.
+  // Contacts are found afresh every frame (targets from this frame's geometry), so the solution
+  // depends on this frame's input only.
   Points3 X = has_previous_ ? vertices_ : assemble(b, gather_free(b, S), fixed);
+  contacts_.clear();
   for (int round = 0; round < b.options.max_contact_rounds; ++round) {
     std::vector<int> wanted;
     for (const Contact& c : contacts_) wanted.push_back(b.free_index[c.vertex]);
     std::sort(wanted.begin(), wanted.end());
-    if (wanted != factorised_contacts_) factorise();
+    if (!contacts_.empty() && wanted != factorised_contacts_) factorise();
 
     Points3 rhs = rhs_base;
     for (const Contact& c : contacts_) {

@@ -117,7 +117,8 @@ struct SurfaceFrameInfo {
 };
 
 // Per-muscle solver: prefactorises the system once and refactorises (numerically only, same
-// pattern) when the set of bone contacts changes; warm-starts from the previous frame.
+// pattern, into a second factor) when the set of bone contacts changes within a frame; warm-starts
+// the volume iteration from the previous frame's solution. Contacts are re-detected every frame.
 class SurfaceFirstSolver {
  public:
   // `binding` and `bones` must outlive the solver; bones.size() == binding.num_bones().
@@ -161,6 +162,7 @@ class SurfaceFirstSolver {
   std::unique_ptr<Factor> factor_;
   std::vector<Contact> contacts_;
   std::vector<int> factorised_contacts_;  // free indices with a contact in the current factor
+  bool analysed_contacts_ = false;        // symbolic analysis of the contact factor done
   Points3 vertices_;
   bool has_previous_ = false;
   SurfaceFrameInfo info_;
