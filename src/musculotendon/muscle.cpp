@@ -106,7 +106,10 @@ CurvePoint calc_force_velocity(const Musculotendon& m, double a, double v) {
   switch (m.params.model) {
     case MuscleModel::thelen2003:
       return thelen_force_velocity(m.params.thelen, std::clamp(a, m.minimum_activation, 1.0), v);
-    case MuscleModel::millard2012: return m.millard.force_velocity.calc(v);
+    case MuscleModel::millard2012:
+      // The two middle Bezier segments join exactly at (0, 1) with the isometric slope.
+      if (v == 0.0) return {1.0, m.millard_in_use.isometric_slope};
+      return m.millard.force_velocity.calc(v);
     case MuscleModel::degroote2016: return degroote_force_velocity(v);
   }
   return {};
