@@ -14,7 +14,10 @@
 #include <cstdint>
 #include <cstring>
 #include <fstream>
+#include <iterator>
 #include <limits>
+#include <new>
+#include <stdexcept>
 #include <sstream>
 #include <string_view>
 
@@ -118,18 +121,19 @@ TriMesh triangulate_soup(const PolygonSoup& soup, const std::string& file, long*
   return mesh;
 }
 
-TriMesh read_obj(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw_bad_input("cannot open the file", {.file = path.string()});
+TriMesh read_obj(std::string_view bytes, const std::string& file) {
   PolygonSoup soup;
-  std::string line;
   long line_number = 0;
-  while (std::getline(in, line)) {
+  std::size_t next = 0;
+  while (next < bytes.size()) {
+    const std::size_t eol = std::min(bytes.find('\n', next), bytes.size());
+    const std::string_view line = bytes.substr(next, eol - next);
+    next = eol + 1;
     ++line_number;
     const std::string_view text = trim(line);
     if (text.empty() || text.front() == '#') continue;
     const std::vector<std::string_view> tok = split(text);
-    const ErrorContext where{.file = path.string(), .line = line_number};
+    const ErrorContext where{.file = file, .line = line_number};
     if (tok[0] == "v") {
       Vec3 p;
       if (tok.size() < 4 || !parse_double(tok[1], p.x()) || !parse_double(tok[2], p.y()) ||
@@ -158,12 +162,12 @@ TriMesh read_obj(const std::filesystem::path& path) {
         return std::isalnum(static_cast<unsigned char>(c)) || c == '_';
       });
       if (!printable) {
-        throw_bad_input("not an OBJ text line", {.file = path.string(), .line = line_number,
+        throw_bad_input("not an OBJ text line", {.file = file, .line = line_number,
                                                  .suggestion = "is this a binary file?"});
       }
     }
   }
-  return triangulate_soup(soup, path.string(), nullptr);
+  return triangulate_soup(soup, file, nullptr);
 }
 
 void write_obj(const std::filesystem::path& path, const TriMesh& mesh) {
@@ -265,26 +269,44 @@ std::string to_string(MeshFormat format) {
   return "?";
 }
 
-TriMesh read_mesh(const std::filesystem::path& path, LengthUnit unit) {
+TriMesh read_mesh_from_memory(std::string_view bytes, MeshFormat format, LengthUnit unit,
+                              const std::string& name) {
   using namespace mesh_io_detail;
+  TriMesh mesh;
+  try {
+    switch (format) {
+      case MeshFormat::obj: mesh = read_obj(bytes, name); break;
+      case MeshFormat::stl: mesh = read_stl(bytes, name); break;
+      case MeshFormat::ply: mesh = read_ply(bytes, name); break;
+      case MeshFormat::vtp: mesh = read_vtp(bytes, name); break;
+    }
+  } catch (const Error&) {
+    throw;
+  } catch (const std::bad_alloc&) {
+    throw_bad_input("the file declares more data than fits in memory",
+                    {.file = name, .suggestion = "the file is probably corrupt"});
+  } catch (const std::exception& e) {
+    // Assimp and VTK report problems with their own exception types
+    throw_bad_input(std::string("cannot read the file: ") + e.what(), {.file = name});
+  }
+  const double scale = metres_per(unit);
+  if (scale != 1.0) mesh.V *= scale;
+  spdlog::debug("read {}: {} vertices, {} triangles ({})", name, mesh.V.rows(), mesh.F.rows(),
+                to_string(format));
+  return mesh;
+}
+
+TriMesh read_mesh(const std::filesystem::path& path, LengthUnit unit) {
   const MeshFormat format = find_mesh_format(path);
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) {
     throw_bad_input("no such mesh file", {.file = path.string(),
                                           .suggestion = "check the path and its spelling"});
   }
-  TriMesh mesh;
-  switch (format) {
-    case MeshFormat::obj: mesh = read_obj(path); break;
-    case MeshFormat::stl: mesh = read_stl(path); break;
-    case MeshFormat::ply: mesh = read_ply(path); break;
-    case MeshFormat::vtp: mesh = read_vtp(path); break;
-  }
-  const double scale = metres_per(unit);
-  if (scale != 1.0) mesh.V *= scale;
-  spdlog::debug("read {}: {} vertices, {} triangles ({})", path.string(), mesh.V.rows(),
-                mesh.F.rows(), to_string(format));
-  return mesh;
+  std::ifstream in(path, std::ios::binary);
+  std::string bytes(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>{});
+  if (!in && !in.eof()) throw_bad_input("cannot read the file", {.file = path.string()});
+  return read_mesh_from_memory(bytes, format, unit, path.string());
 }
 
 void write_mesh(const std::filesystem::path& path, const TriMesh& mesh, MeshWriteOptions options) {

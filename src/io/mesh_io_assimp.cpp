@@ -8,7 +8,10 @@
 #include <assimp/Importer.hpp>
 #include <assimp/scene.h>
 
+#include <algorithm>
 #include <cctype>
+#include <charconv>
+#include <string_view>
 #include <cstdint>
 #include <cstring>
 #include <fstream>
@@ -18,13 +21,7 @@
 namespace fascicle::mesh_io_detail {
 namespace {
 
-std::vector<char> read_bytes(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw_bad_input("cannot open the file", {.file = path.string()});
-  return std::vector<char>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-}
-
-bool starts_with_word(const std::vector<char>& bytes, const char* word) {
+bool starts_with_word(std::string_view bytes, const char* word) {
   std::size_t i = 0;
   while (i < bytes.size() && std::isspace(static_cast<unsigned char>(bytes[i]))) ++i;
   const std::size_t n = std::strlen(word);
@@ -38,9 +35,9 @@ bool starts_with_word(const std::vector<char>& bytes, const char* word) {
 // Binary STL: 80-byte header, uint32 triangle count, 50 bytes per triangle. A file that does not
 // start with "solid" must be binary, and its size must match its count; Assimp would only say that
 // it cannot tell the storage kind, so the check is made here with a clearer message.
-void check_stl_size(const std::vector<char>& bytes, const std::filesystem::path& path) {
+void check_stl_size(std::string_view bytes, const std::string& file) {
   if (bytes.empty()) {
-    throw_bad_input("the file is empty", {.file = path.string(),
+    throw_bad_input("the file is empty", {.file = file,
                                           .suggestion = "re-export the mesh"});
   }
   const bool ascii_like = starts_with_word(bytes, "solid");
@@ -48,7 +45,7 @@ void check_stl_size(const std::vector<char>& bytes, const std::filesystem::path&
     if (ascii_like) return;
     throw_bad_input("too short for a binary STL (" + std::to_string(bytes.size()) +
                         " bytes, the header alone needs 84)",
-                    {.file = path.string(), .suggestion = "the file is truncated; re-export it"});
+                    {.file = file, .suggestion = "the file is truncated; re-export it"});
   }
   std::uint32_t count = 0;
   std::memcpy(&count, bytes.data() + 80, 4);
@@ -57,19 +54,113 @@ void check_stl_size(const std::vector<char>& bytes, const std::filesystem::path&
   throw_bad_input("binary STL header declares " + std::to_string(count) + " triangles (" +
                       std::to_string(expected) + " bytes) but the file has " +
                       std::to_string(bytes.size()) + " bytes",
-                  {.file = path.string(),
+                  {.file = file,
                    .suggestion = expected > bytes.size() ? "the file is truncated; re-export it"
                                                          : "the file has trailing data or a "
                                                            "wrong triangle count"});
 }
 
-const aiScene* import(Assimp::Importer& importer, const std::vector<char>& bytes,
-                      const std::filesystem::path& path, const char* hint) {
+// Each declared PLY element takes at least one byte, so a header declaring more elements than the
+// file has bytes is corrupt; checking it first keeps a damaged header from requesting gigabytes.
+void check_ply_header(std::string_view bytes, const std::string& file) {
+  const std::string_view text = bytes.substr(0, 65536);
+  const std::size_t end = text.find("end_header");
+  if (end == std::string_view::npos) {
+    throw_bad_input("PLY header has no end_header line", {.file = file,
+                    .suggestion = "the file is truncated or not a PLY file"});
+  }
+  const std::size_t after = end + 10;
+  if (after >= bytes.size() || (bytes[after] != '\n' && bytes.substr(after, 2) != "\r\n") ||
+      (end > 0 && bytes[end - 1] != '\n')) {
+    throw_bad_input("PLY end_header must be a line of its own", {.file = file,
+                    .suggestion = "the file is corrupt or not a PLY file"});
+  }
+  // every header line must be well formed: Assimp loops on some damaged headers
+  {
+    long number = 0;
+    std::size_t start = 0;
+    const std::string_view header = text.substr(0, end + 10);
+    while (start < header.size()) {
+      const std::size_t eol = std::min(header.find('\n', start), header.size());
+      std::string_view ln = header.substr(start, eol - start);
+      start = eol + 1;
+      ++number;
+      if (!ln.empty() && ln.back() == '\r') ln.remove_suffix(1);
+      std::vector<std::string_view> tok;
+      for (std::size_t i = 0; i < ln.size();) {
+        while (i < ln.size() && ln[i] == ' ') ++i;
+        const std::size_t b = i;
+        while (i < ln.size() && ln[i] != ' ') ++i;
+        if (i > b) tok.push_back(ln.substr(b, i - b));
+      }
+      const bool printable = std::all_of(ln.begin(), ln.end(), [](char c) {
+        return c == '\t' || (c >= 32 && c < 127);
+      });
+      const std::string_view key = tok.empty() ? std::string_view() : tok[0];
+      const bool ok = printable && !tok.empty() &&
+                      ((key == "ply" && tok.size() == 1) || (key == "format" && tok.size() == 3) ||
+                       key == "comment" || key == "obj_info" ||
+                       (key == "element" && tok.size() == 3) ||
+                       (key == "property" && tok.size() == 3 && tok[1] != "list") ||
+                       (key == "property" && tok.size() == 5 && tok[1] == "list") ||
+                       (key == "end_header" && tok.size() == 1));
+      if (!ok) {
+        throw_bad_input("malformed PLY header line", {.file = file, .line = number,
+                        .suggestion = "the file is corrupt or not a PLY file"});
+      }
+    }
+  }
+  unsigned long long declared = 0;
+  std::size_t at = 0;
+  long line = 1;
+  while ((at = text.find("element", at)) != std::string_view::npos && at < end) {
+    line = 1 + static_cast<long>(std::count(text.begin(), text.begin() + static_cast<long>(at), '\n'));
+    std::size_t p = text.find_first_of(" \t", at);
+    p = text.find_first_not_of(" \t", p);                // element name
+    p = p == std::string_view::npos ? p : text.find_first_of(" \t", p);
+    p = p == std::string_view::npos ? p : text.find_first_not_of(" \t", p);  // count
+    unsigned long long n = 0;
+    if (p == std::string_view::npos ||
+        std::from_chars(text.data() + p, text.data() + end, n).ec != std::errc()) {
+      throw_bad_input("PLY element line without a count", {.file = file, .line = line});
+    }
+    declared += n;
+    if (declared > bytes.size()) {
+      throw_bad_input("PLY header declares " + std::to_string(n) + " elements, more than the " +
+                          std::to_string(bytes.size()) + " bytes of the file can hold",
+                      {.file = file, .line = line,
+                       .suggestion = "the file is truncated or its header is corrupt"});
+    }
+    at += 7;
+  }
+  // ASCII bodies: an integer token (list count or index) larger than the file is corrupt; Assimp
+  // would try to read or copy that many list entries
+  if (text.substr(0, end).find("format ascii") == std::string_view::npos) return;
+  const std::size_t body = bytes.find('\n', end);
+  for (std::size_t p = body; p != std::string_view::npos && p < bytes.size();) {
+    p = bytes.find_first_of("0123456789", p);
+    if (p == std::string_view::npos) break;
+    const bool starts_token = p == 0 || std::isspace(static_cast<unsigned char>(bytes[p - 1]));
+    std::size_t q = p;
+    while (q < bytes.size() && std::isdigit(static_cast<unsigned char>(bytes[q]))) ++q;
+    const bool ends_token = q == bytes.size() || std::isspace(static_cast<unsigned char>(bytes[q]));
+    if (starts_token && ends_token && (q - p > 19 || std::stoull(std::string(bytes.substr(p, q - p))) > bytes.size())) {
+      throw_bad_input("PLY body holds the integer " + std::string(bytes.substr(p, std::min<std::size_t>(q - p, 24))) +
+                          ", larger than any count or index a " + std::to_string(bytes.size()) +
+                          "-byte file can hold",
+                      {.file = file, .suggestion = "the file is corrupt; re-export it"});
+    }
+    p = q;
+  }
+}
+
+const aiScene* import(Assimp::Importer& importer, std::string_view bytes,
+                      const std::string& file, const char* hint) {
   // no post-processing flags: Assimp must not drop, merge or fix anything
   const aiScene* scene = importer.ReadFileFromMemory(bytes.data(), bytes.size(), 0, hint);
   if (!scene) {
     throw_bad_input(std::string("cannot read the file: ") + importer.GetErrorString(),
-                    {.file = path.string(), .suggestion = "check that it is a valid " +
+                    {.file = file, .suggestion = "check that it is a valid " +
                                                           std::string(hint) + " file"});
   }
   return scene;
@@ -96,7 +187,10 @@ std::uint64_t bits(double v) {
 }
 
 // Collects every mesh of the scene (root-level meshes of STL/PLY have identity transforms).
-PolygonSoup collect(const aiScene* scene, bool join_identical) {
+// Every corner index takes at least one byte of the file: `max_corners` bounds what a damaged
+// file can make us allocate.
+PolygonSoup collect(const aiScene* scene, bool join_identical, std::size_t max_corners,
+                    const std::string& file) {
   PolygonSoup soup;
   std::unordered_map<Key, int, KeyHash> seen;
   for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
@@ -121,6 +215,10 @@ PolygonSoup collect(const aiScene* scene, bool join_identical) {
     for (unsigned f = 0; f < mesh->mNumFaces; ++f) {
       const aiFace& face = mesh->mFaces[f];
       if (face.mNumIndices > 0 && !face.mIndices) continue;
+      if (soup.corners.size() + face.mNumIndices > max_corners) {
+        throw_bad_input("the faces declare more vertex indices than the file can hold",
+                        {.file = file, .suggestion = "the file is corrupt; re-export it"});
+      }
       for (unsigned k = 0; k < face.mNumIndices; ++k) {
         const unsigned i = face.mIndices[k];
         // indices outside this mesh stay out of range for validate_mesh to report
@@ -134,28 +232,27 @@ PolygonSoup collect(const aiScene* scene, bool join_identical) {
 
 }  // namespace
 
-TriMesh read_stl(const std::filesystem::path& path) {
-  const std::vector<char> bytes = read_bytes(path);
-  check_stl_size(bytes, path);
+TriMesh read_stl(std::string_view bytes, const std::string& file) {
+  check_stl_size(bytes, file);
   Assimp::Importer importer;
-  const aiScene* scene = import(importer, bytes, path, "stl");
+  const aiScene* scene = import(importer, bytes, file, "stl");
   long skipped = 0;
-  TriMesh mesh = triangulate_soup(collect(scene, true), path.string(), &skipped);
-  if (skipped > 0) spdlog::warn("{}: skipped {} facets with fewer than 3 corners", path.string(), skipped);
+  TriMesh mesh = triangulate_soup(collect(scene, true, bytes.size(), file), file, &skipped);
+  if (skipped > 0) spdlog::warn("{}: skipped {} facets with fewer than 3 corners", file, skipped);
   return mesh;
 }
 
-TriMesh read_ply(const std::filesystem::path& path) {
-  const std::vector<char> bytes = read_bytes(path);
+TriMesh read_ply(std::string_view bytes, const std::string& file) {
   if (!starts_with_word(bytes, "ply")) {
-    throw_bad_input("not a PLY file (it does not start with 'ply')", {.file = path.string()});
+    throw_bad_input("not a PLY file (it does not start with 'ply')", {.file = file});
   }
+  check_ply_header(bytes, file);
   Assimp::Importer importer;
-  const aiScene* scene = import(importer, bytes, path, "ply");
+  const aiScene* scene = import(importer, bytes, file, "ply");
   long skipped = 0;
-  TriMesh mesh = triangulate_soup(collect(scene, false), path.string(), &skipped);
+  TriMesh mesh = triangulate_soup(collect(scene, false, bytes.size(), file), file, &skipped);
   if (skipped > 0) {
-    spdlog::warn("{}: skipped {} points/lines (faces with fewer than 3 vertices)", path.string(),
+    spdlog::warn("{}: skipped {} points/lines (faces with fewer than 3 vertices)", file,
                  skipped);
   }
   return mesh;

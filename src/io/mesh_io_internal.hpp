@@ -4,6 +4,7 @@
 #include "fascicle/io/mesh_io.hpp"
 
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace fascicle::mesh_io_detail {
@@ -19,10 +20,11 @@ struct PolygonSoup {
 // three corners are counted in `skipped`. Throws bad_input if no triangle results.
 TriMesh triangulate_soup(const PolygonSoup& soup, const std::string& file, long* skipped);
 
-TriMesh read_obj(const std::filesystem::path& path);
-TriMesh read_stl(const std::filesystem::path& path);  // Assimp, with a size pre-check
-TriMesh read_ply(const std::filesystem::path& path);  // Assimp
-TriMesh read_vtp(const std::filesystem::path& path);  // VTK
+// Readers of a whole file's bytes; `file` names it in error messages.
+TriMesh read_obj(std::string_view bytes, const std::string& file);
+TriMesh read_stl(std::string_view bytes, const std::string& file);  // Assimp, size pre-check
+TriMesh read_ply(std::string_view bytes, const std::string& file);  // Assimp, header pre-check
+TriMesh read_vtp(std::string_view bytes, const std::string& file);  // VTK
 
 // `mesh` is already in the file's unit.
 void write_obj(const std::filesystem::path& path, const TriMesh& mesh);

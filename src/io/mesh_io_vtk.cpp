@@ -18,8 +18,13 @@
 #include <vtkXMLPolyDataReader.h>
 #include <vtkXMLPolyDataWriter.h>
 
+#include <charconv>
+#include <cctype>
 #include <climits>
+#include <cstdint>
+#include <cstring>
 #include <string>
+#include <string_view>
 
 namespace fascicle::mesh_io_detail {
 namespace {
@@ -50,19 +55,112 @@ int to_index(vtkIdType id, vtkIdType num_points) {
   return (id < 0 || id >= num_points || id > INT_MAX) ? -1 : static_cast<int>(id);
 }
 
+// Decodes base64 text into `out` (stops at the first non-alphabet character).
+void decode_base64(std::string_view text, std::size_t max_bytes, std::string& out) {
+  static constexpr std::string_view alphabet =
+      "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  unsigned buffer = 0;
+  int bits = 0;
+  for (const char c : text) {
+    const std::size_t v = alphabet.find(c);
+    if (v == std::string_view::npos || out.size() >= max_bytes) break;
+    buffer = (buffer << 6) | static_cast<unsigned>(v);
+    bits += 6;
+    if (bits >= 8) {
+      bits -= 8;
+      out.push_back(static_cast<char>((buffer >> bits) & 0xFF));
+    }
+  }
+}
+
+// zlib-compressed VTK arrays start with a header (block count, block size, last block size,
+// compressed sizes). VTK allocates from it before checking it, so a damaged header could request
+// gigabytes: every header must describe at most ~1100x the file's size (zlib expands <= 1032x).
+void check_compression_headers(std::string_view bytes, const std::string& file) {
+  const std::string_view head = bytes.substr(0, 4096);
+  if (head.find("compressor=\"") == std::string_view::npos) return;
+  const bool wide = head.find("header_type=\"UInt64\"") != std::string_view::npos;
+  const std::size_t word = wide ? 8 : 4;
+  const auto check_header = [&](const std::string& raw) {
+    if (raw.size() < 2 * word) return;  // too short: VTK reports it
+    std::uint64_t blocks = 0, block_size = 0;
+    std::memcpy(&blocks, raw.data(), word);
+    std::memcpy(&block_size, raw.data() + word, word);
+    const double expanded = static_cast<double>(blocks) * static_cast<double>(block_size);
+    if (blocks > bytes.size() || expanded > 1100.0 * static_cast<double>(bytes.size()) + 65536.0) {
+      throw_bad_input("a compressed data array declares " + std::to_string(blocks) +
+                          " blocks of " + std::to_string(block_size) + " bytes, more than a " +
+                          std::to_string(bytes.size()) + "-byte file can hold",
+                      {.file = file, .suggestion = "the file is corrupt; re-export it"});
+    }
+  };
+  const std::size_t appended = bytes.find("<AppendedData");
+  const std::size_t marker = appended == std::string_view::npos ? appended
+                                                                : bytes.find('_', appended);
+  const bool appended_base64 =
+      appended != std::string_view::npos &&
+      bytes.substr(appended, 64).find("encoding=\"base64\"") != std::string_view::npos;
+  const std::size_t header_bytes = 3 * word;
+  for (std::size_t at = bytes.find("<DataArray"); at != std::string_view::npos &&
+                                                  (appended == std::string_view::npos || at < appended);
+       at = bytes.find("<DataArray", at + 1)) {
+    const std::size_t close = bytes.find('>', at);
+    if (close == std::string_view::npos) return;
+    const std::string_view tag = bytes.substr(at, close - at);
+    std::string raw;
+    if (tag.find("format=\"binary\"") != std::string_view::npos) {
+      std::size_t p = close + 1;
+      while (p < bytes.size() && std::isspace(static_cast<unsigned char>(bytes[p]))) ++p;
+      decode_base64(bytes.substr(p, 64), header_bytes, raw);
+    } else if (tag.find("format=\"appended\"") != std::string_view::npos &&
+               marker != std::string_view::npos) {
+      const std::size_t o = tag.find("offset=\"");
+      unsigned long long offset = 0;
+      if (o == std::string_view::npos) continue;
+      std::from_chars(tag.data() + o + 8, tag.data() + tag.size(), offset);
+      if (offset >= bytes.size() - marker - 1) continue;  // VTK reports the bad offset
+      const std::string_view data = bytes.substr(marker + 1 + offset);
+      if (appended_base64) decode_base64(data.substr(0, 64), header_bytes, raw);
+      else raw = std::string(data.substr(0, header_bytes));
+    }
+    check_header(raw);
+  }
+}
+
 }  // namespace
 
-TriMesh read_vtp(const std::filesystem::path& path) {
-  const std::string file = path.string();
-  vtkNew<vtkXMLPolyDataReader> reader;
-  VtkMessages messages;
-  messages.observe(reader);
-  if (!reader->CanReadFile(file.c_str())) {
+TriMesh read_vtp(std::string_view bytes, const std::string& file) {
+  // VTK's CanReadFile needs a file; the same test on the bytes: an XML VTKFile of type PolyData
+  const std::string_view head = bytes.substr(0, 4096);
+  const std::size_t root = head.find("<VTKFile");
+  if (root == std::string_view::npos ||
+      head.find("type=\"PolyData\"", root) == std::string_view::npos) {
     throw_bad_input("not a VTK XML PolyData file",
                     {.file = file, .suggestion = "check that it is a .vtp written by VTK, "
                                                  "ParaView or OpenSim"});
   }
-  reader->SetFileName(file.c_str());
+  // a damaged count must not make VTK allocate gigabytes: zlib expands at most ~1032:1
+  for (const char* what : {"NumberOfPoints=\"", "NumberOfPolys=\"", "NumberOfStrips=\"",
+                           "NumberOfVerts=\"", "NumberOfLines=\""}) {
+    for (std::size_t at = head.find(what); at != std::string_view::npos;
+         at = head.find(what, at + 1)) {
+      const std::size_t p = at + std::char_traits<char>::length(what);
+      unsigned long long n = 0;
+      std::from_chars(head.data() + p, head.data() + head.size(), n);
+      if (n > 1100ull * bytes.size()) {
+        throw_bad_input(std::string(what).substr(0, std::string(what).size() - 2) + " = " +
+                            std::to_string(n) + " cannot fit in a file of " +
+                            std::to_string(bytes.size()) + " bytes",
+                        {.file = file, .suggestion = "the file is corrupt; re-export it"});
+      }
+    }
+  }
+  check_compression_headers(bytes, file);
+  vtkNew<vtkXMLPolyDataReader> reader;
+  VtkMessages messages;
+  messages.observe(reader);
+  reader->ReadFromInputStringOn();
+  reader->SetInputString(std::string(bytes));
   reader->Update();
   vtkPolyData* data = reader->GetOutput();
   if (!messages.errors.empty() || reader->GetErrorCode() != 0 || !data) {

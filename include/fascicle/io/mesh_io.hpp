@@ -9,6 +9,7 @@
 
 #include <filesystem>
 #include <string>
+#include <string_view>
 
 namespace fascicle {
 
@@ -25,6 +26,11 @@ std::string to_string(MeshFormat format);
 // Throws fascicle::Error (bad_input, naming the file and, where known, the line) when the file is
 // missing, unreadable, malformed or holds no triangles.
 TriMesh read_mesh(const std::filesystem::path& path, LengthUnit unit = LengthUnit::metre);
+
+// The same from the bytes of a file already in memory; `name` is used in error messages.
+TriMesh read_mesh_from_memory(std::string_view bytes, MeshFormat format,
+                              LengthUnit unit = LengthUnit::metre,
+                              const std::string& name = "<memory>");
 
 enum class MeshEncoding {
   binary,    // STL/PLY binary little-endian; VTP inline base64 binary
