@@ -2,6 +2,7 @@
 #include "fascicle/fibres/attachment.hpp"
 
 #include "fascicle/core/error.hpp"
+#include "fascicle/fibres/fibre_set.hpp"
 #include "fascicle/geometry/mesh_query.hpp"
 #include "point_index.hpp"
 
@@ -270,6 +271,39 @@ Points3 read_landmarks_csv(const std::filesystem::path& path, double metres_per_
                     {.file = path.string(), .suggestion = "write one x,y,z row per landmark"});
   Points3 P(pts.size(), 3);
   for (std::size_t k = 0; k < pts.size(); ++k) P.row(k) = metres_per_unit * pts[k].transpose();
+  return P;
+}
+
+}  // namespace fascicle
+
+namespace fascicle {
+
+Points3 calc_area_samples(const TriMesh& muscle, const AttachmentArea& area, int count) {
+  if (area.triangles.empty())
+    throw_bad_input("the " + area.name + " area has no triangle", {.object = area.name});
+  std::vector<double> cumulative;
+  double total = 0.0;
+  for (int f : area.triangles) {
+    const Vec3 a = muscle.V.row(muscle.F(f, 0)), b = muscle.V.row(muscle.F(f, 1)),
+               c = muscle.V.row(muscle.F(f, 2));
+    total += 0.5 * (b - a).cross(c - a).norm();
+    cumulative.push_back(total);
+  }
+  Points3 P(std::max(count, 0), 3);
+  for (int i = 0; i < count; ++i) {
+    const Vec2 r = get_r2_point(i);
+    const double target = r.x() * total;
+    const std::size_t k = std::min<std::size_t>(
+        std::lower_bound(cumulative.begin(), cumulative.end(), target) - cumulative.begin(),
+        cumulative.size() - 1);
+    const double lo = k == 0 ? 0.0 : cumulative[k - 1];
+    const double s = std::clamp((target - lo) / std::max(cumulative[k] - lo, 1e-300), 0.0, 1.0);
+    const int f = area.triangles[k];
+    const Vec3 a = muscle.V.row(muscle.F(f, 0)), b = muscle.V.row(muscle.F(f, 1)),
+               c = muscle.V.row(muscle.F(f, 2));
+    const double q = std::sqrt(s);
+    P.row(i) = ((1.0 - q) * a + q * (1.0 - r.y()) * b + q * r.y() * c).transpose();
+  }
   return P;
 }
 

@@ -198,6 +198,7 @@ struct Tracer {
     Location loc = locate(f.tets, seed_tet, seed);
     if (loc.tet < 0) return Points3();
     Vec3 p = seed;
+    int slides = 0;
     for (int step = 0; step < max_steps; ++step) {
       if (potential(loc) >= 1.0 - 1e-9) break;
       // RK4 on the unit direction field; stages that leave the mesh fall back to an Euler step.
@@ -232,10 +233,32 @@ struct Tracer {
         pts.push_back(p);
         continue;
       }
-      // The step leaves the muscle: stop on the boundary.
+      // The step leaves the muscle. On the insertion area (u near 1) the fibre ends there;
+      // elsewhere (a zero-flux side, left by interpolation error) it slides along the boundary.
       auto [exit, lexit] = find_exit(p, loc, next);
       if ((exit - p).norm() > 1e-3 * h) pts.push_back(exit);
-      break;
+      if (potential(lexit) >= 0.999 || ++slides > max_steps / 2) break;
+      const Location out = locate(f.tets, lexit.tet, next);
+      int face = 0;
+      for (int k = 1; k < 4; ++k)
+        if (out.bary(k) < out.bary(face)) face = k;
+      const int bt = out.last_tet;
+      const Vec3 a = f.tets.V.row(f.tets.T(bt, (face + 1) % 4));
+      const Vec3 b = f.tets.V.row(f.tets.T(bt, (face + 2) % 4));
+      const Vec3 c = f.tets.V.row(f.tets.T(bt, (face + 3) % 4));
+      Vec3 normal = (b - a).cross(c - a).normalized();
+      if (normal.dot(Vec3(f.tets.V.row(f.tets.T(bt, face))) - a) > 0) normal = -normal;  // outward
+      const Vec3 along = (next - exit) - (next - exit).dot(normal) * normal;
+      Vec3 slid = exit + along - 0.02 * h * normal;
+      Location ls = locate(f.tets, lexit.tet, slid);
+      if (ls.tet < 0) {
+        slid = exit - 0.02 * h * normal;
+        ls = locate(f.tets, lexit.tet, slid);
+      }
+      if (ls.tet < 0) break;
+      p = slid;
+      loc = ls;
+      pts.push_back(p);
     }
     Points3 P(pts.size(), 3);
     for (std::size_t k = 0; k < pts.size(); ++k) P.row(k) = pts[k].transpose();

@@ -65,6 +65,10 @@ Attachments find_bone_attachments(const TriMesh& muscle, const std::vector<TriMe
                                   double end_fraction = 0.08,
                                   const Vec3& origin_towards = Vec3::UnitZ());
 
+// `count` points spread over the area's triangles: an area-weighted R2 low-discrepancy sequence
+// (point i picks a triangle by its first coordinate, then a point in it by uniform mapping).
+Points3 calc_area_samples(const TriMesh& muscle, const AttachmentArea& area, int count);
+
 // Reads landmarks from CSV: one point per row, three numeric columns x,y,z (an optional header
 // row and extra columns are ignored; '#' starts a comment), scaled by `metres_per_unit`.
 // Throws bad_input naming the file and line on malformed rows or when there is no point.

@@ -1,0 +1,148 @@
+// Fibre decomposition benchmarks on the Visible Human medial gastrocnemius (19k triangles), and
+// a one-iteration validation run per muscle and method (fibre length vs Ward 2009, DTI angles).
+#include "fascicle/fibres/analysis.hpp"
+#include "fascicle/fibres/decompose.hpp"
+#include "fascicle/io/mesh_io.hpp"
+
+#include <benchmark/benchmark.h>
+
+#include <filesystem>
+#include <string>
+
+using namespace fascicle;
+
+namespace {
+
+const std::filesystem::path data = FASCICLE_DEFAULT_DATA_DIR;
+const std::string vh = "visible_human_female/right/VHF_Right_";
+
+const TriMesh& mg() {
+  static const TriMesh m =
+      read_mesh(data / (vh + "Muscle_GastrocnemiusMedial_smooth.stl"), LengthUnit::millimetre);
+  return m;
+}
+
+void BM_TemplateSetup(benchmark::State& state) {
+  const Attachments areas = find_end_attachments(mg());
+  for (auto _ : state) {
+    TemplateMapper mapper(mg(), areas);
+    benchmark::DoNotOptimize(mapper);
+  }
+  state.counters["triangles"] = static_cast<double>(mg().num_faces());
+}
+BENCHMARK(BM_TemplateSetup)->Unit(benchmark::kMillisecond);
+
+void BM_TemplateFibres(benchmark::State& state) {
+  const Attachments areas = find_end_attachments(mg());
+  const TemplateMapper mapper(mg(), areas);
+  const auto t = static_cast<FibreTemplate>(state.range(0));
+  for (auto _ : state) {
+    const FibreSet unit = make_template_fibres(t, 100, 16);  // 15 segments
+    FibreSet f = mapper.calc_fibres(unit, is_end_to_end(t));
+    benchmark::DoNotOptimize(f);
+  }
+  state.SetLabel(to_string(t));
+}
+BENCHMARK(BM_TemplateFibres)->DenseRange(0, 4)->Unit(benchmark::kMillisecond);
+
+void BM_Tetrahedralise(benchmark::State& state) {
+  TetOptions opt;
+  opt.max_radius_edge_ratio = state.range(0) ? 2.0 : 0.0;
+  Eigen::Index tets = 0;
+  for (auto _ : state) {
+    TetMesh t = calc_tet_mesh(mg(), opt);
+    tets = t.num_tets();
+    benchmark::DoNotOptimize(t);
+  }
+  state.counters["tets"] = static_cast<double>(tets);
+  state.SetLabel(state.range(0) ? "quality q2" : "boundary only");
+}
+BENCHMARK(BM_Tetrahedralise)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
+void BM_LaplaceSolve(benchmark::State& state) {
+  const Attachments areas = find_end_attachments(mg());
+  TetOptions opt;
+  opt.max_radius_edge_ratio = state.range(0) ? 2.0 : 0.0;
+  const TetMesh t = calc_tet_mesh(mg(), opt);
+  for (auto _ : state) {
+    VecX u = solve_laplace(t, areas.origin.vertices, areas.insertion.vertices);
+    benchmark::DoNotOptimize(u);
+  }
+  state.counters["vertices"] = static_cast<double>(t.num_vertices());
+}
+BENCHMARK(BM_LaplaceSolve)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
+void BM_HarmonicTrace(benchmark::State& state) {
+  const Attachments areas = find_end_attachments(mg());
+  HarmonicOptions opt;
+  opt.tets.max_radius_edge_ratio = state.range(0) ? 2.0 : 0.0;
+  const HarmonicField field = calc_harmonic_field(mg(), areas, opt);
+  for (auto _ : state) {
+    FibreSet f = trace_harmonic_fibres(field, areas.origin, {.count = 100, .resolution = 16});
+    benchmark::DoNotOptimize(f);
+  }
+}
+BENCHMARK(BM_HarmonicTrace)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
+// Validation: one decomposition per muscle, method and template; counters carry the results.
+struct ValidationCase {
+  const char* name;
+  std::string mesh;
+  std::vector<std::string> bones;
+  double ward_m;
+  const char* tracts;  // DTI tracts or nullptr
+};
+
+const ValidationCase validation_cases[] = {
+    {"soleus", vh + "Muscle_Soleus_smooth.stl",
+     {vh + "Bone_Tibia_smooth.stl", vh + "Bone_Fibula_smooth.stl"}, 0.0440, nullptr},
+    {"tibialis_anterior", vh + "Muscle_TibialisAnterior_smooth.stl", {vh + "Bone_Tibia_smooth.stl"},
+     0.0683, nullptr},
+    {"medial_gastrocnemius", vh + "Muscle_GastrocnemiusMedial_smooth.stl", {}, 0.0510, nullptr},
+    {"vastus_lateralis", vh + "Muscle_VastusLateralis_smooth.stl", {}, 0.0994, nullptr},
+    {"gluteus_medius", vh + "Muscle_GluteusMedius_smooth.stl", {}, 0.0733, nullptr},
+    {"bolsterlee_MG", "bolsterlee_dti/MG.stl", {}, 0.0510, "bolsterlee_dti/tracts_MG.txt"},
+    {"bolsterlee_TA", "bolsterlee_dti/TA.stl", {}, 0.0683, "bolsterlee_dti/tracts_TA.txt"},
+};
+
+void BM_Validate(benchmark::State& state) {
+  const ValidationCase& c = validation_cases[state.range(0)];
+  const auto method = static_cast<FibreMethod>(state.range(1));
+  const auto tmpl = static_cast<FibreTemplate>(state.range(2));
+  const TriMesh muscle = read_mesh(data / c.mesh, LengthUnit::millimetre);
+  Attachments areas;
+  if (c.bones.empty()) {
+    areas = find_end_attachments(muscle);
+  } else {
+    std::vector<TriMesh> bones;
+    for (const auto& b : c.bones) bones.push_back(read_mesh(data / b, LengthUnit::millimetre));
+    areas = find_bone_attachments(muscle, bones, 0.002);
+  }
+  DecomposeOptions opt;
+  opt.method = method;
+  opt.fibre_template = tmpl;
+  opt.count = 100;
+  opt.resolution = 16;
+  Decomposition d;
+  for (auto _ : state) d = decompose_muscle(muscle, areas, opt);
+  const FibreAnalysis a = analyse_fibres(muscle, areas, d.fibres);
+  state.counters["fibre_len_mm"] = a.mean_fibre_length_m * 1e3;
+  state.counters["ward_ratio"] = a.mean_fibre_length_m / c.ward_m;
+  state.counters["pennation_deg"] = a.mean_pennation_rad * 180 / M_PI;
+  state.counters["pcsa_cm2"] = a.pcsa_m2 * 1e4;
+  state.counters["volume_cm3"] = a.volume_m3 * 1e6;
+  if (c.tracts) {
+    const DirectionDeviation dev = compare_directions(d.fibres, read_tracts(data / c.tracts, 1e-3));
+    state.counters["dti_mean_deg"] = dev.mean_rad * 180 / M_PI;
+    state.counters["dti_sd_deg"] = dev.stddev_rad * 180 / M_PI;
+  }
+  state.SetLabel(std::string(c.name) + " " + to_string(d.method_used) + " " + to_string(tmpl));
+}
+BENCHMARK(BM_Validate)
+    ->ArgsProduct({benchmark::CreateDenseRange(0, 6, 1), {0, 1}, {0, 1, 2}})
+    ->Iterations(1)
+    ->Unit(benchmark::kMillisecond);
+
+}  // namespace
+
+BENCHMARK_MAIN();

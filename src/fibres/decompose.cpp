@@ -1,0 +1,54 @@
+// One-call decomposition with fallback from the template to the harmonic method.
+#include "fascicle/fibres/decompose.hpp"
+
+#include "fascicle/core/error.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cctype>
+
+namespace fascicle {
+
+FibreMethod parse_fibre_method(std::string_view name) {
+  std::string s(name);
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
+  if (s == "template") return FibreMethod::template_map;
+  if (s == "harmonic" || s == "laplace") return FibreMethod::harmonic;
+  throw_usage("unknown fibre method '" + s + "'", {.suggestion = "use template or harmonic"});
+}
+
+std::string to_string(FibreMethod m) {
+  return m == FibreMethod::harmonic ? "harmonic" : "template";
+}
+
+Decomposition decompose_muscle(const TriMesh& muscle, const Attachments& areas,
+                               const DecomposeOptions& options) {
+  check_attachments(muscle, areas);
+  Decomposition d;
+  if (options.method == FibreMethod::template_map) {
+    const TemplateMapper mapper(muscle, areas, options.mapping);
+    if (mapper.is_mappable()) {
+      const FibreSet unit =
+          make_template_fibres(options.fibre_template, options.count, options.resolution);
+      d.fibres = mapper.calc_fibres(unit, is_end_to_end(options.fibre_template));
+      d.method_used = FibreMethod::template_map;
+      return d;
+    }
+    std::string where;
+    for (const SliceIssue& s : mapper.get_issues())
+      where += fmt::format("{}{:.1f} mm ({} contours)", where.empty() ? "" : ", ",
+                           s.axial_position_m * 1e3, s.num_contours);
+    d.warnings.push_back("the " + to_string(options.fibre_template) +
+                         " template cannot be mapped: slices with several contours at " + where +
+                         " from the origin level; falling back to the harmonic method");
+    spdlog::warn("{}", d.warnings.back());
+  }
+  const HarmonicField field = calc_harmonic_field(muscle, areas, options.harmonic);
+  d.fibres = trace_harmonic_fibres(field, areas.origin,
+                                   {.count = options.count, .resolution = options.resolution});
+  d.method_used = FibreMethod::harmonic;
+  return d;
+}
+
+}  // namespace fascicle

@@ -1,0 +1,375 @@
+// Template method: box frame, slices, mean value coordinate map, end re-routing, smoothing.
+#include "fascicle/fibres/template_mapping.hpp"
+
+#include "fascicle/core/error.hpp"
+#include "fascicle/geometry/mesh_query.hpp"
+#include "fascicle/geometry/slicing.hpp"
+
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <numeric>
+
+namespace fascicle {
+
+using Poly2 = Eigen::Matrix<double, Eigen::Dynamic, 2>;
+
+VecX calc_mean_value_coordinates(const Poly2& polygon, const Vec2& p) {
+  const Eigen::Index n = polygon.rows();
+  VecX w(n);
+  // tan(alpha_i / 2) = sin / (1 + cos) with alpha_i the signed angle at p between q_i and q_{i+1}.
+  std::vector<double> r(n), tan_half(n);
+  for (Eigen::Index i = 0; i < n; ++i) r[i] = (Vec2(polygon.row(i)) - p).norm();
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const Vec2 d0 = Vec2(polygon.row(i)) - p, d1 = Vec2(polygon.row((i + 1) % n)) - p;
+    const double cross = d0.x() * d1.y() - d0.y() * d1.x();
+    const double denom = r[i] * r[(i + 1) % n] + d0.dot(d1);
+    tan_half[i] = cross / std::max(denom, 1e-300);
+  }
+  for (Eigen::Index i = 0; i < n; ++i)
+    w(i) = (tan_half[(i + n - 1) % n] + tan_half[i]) / std::max(r[i], 1e-300);
+  const double sum = w.sum();
+  return w / sum;
+}
+
+namespace {
+
+// The unit square's boundary sampled counter-clockwise from (0,0), n/4 points per side.
+Poly2 make_square_boundary(int n) {
+  const int q = n / 4;
+  Poly2 S(4 * q, 2);
+  const std::array<Vec2, 5> c{Vec2(0, 0), Vec2(1, 0), Vec2(1, 1), Vec2(0, 1), Vec2(0, 0)};
+  for (int side = 0; side < 4; ++side)
+    for (int k = 0; k < q; ++k) {
+      const double t = static_cast<double>(k) / q;
+      S.row(side * q + k) = ((1 - t) * c[side] + t * c[side + 1]).transpose();
+    }
+  return S;
+}
+
+// Resamples the closed polyline P (rows) from index a to b (cyclic, b after a) to `m` points
+// equally spaced in arc length, excluding the end point b.
+void resample_piece(const Points3& P, int a, int b, int m, Points3& out, int out_row) {
+  const int n = static_cast<int>(P.rows());
+  std::vector<Vec3> pts;
+  for (int i = a;; i = (i + 1) % n) {
+    pts.emplace_back(P.row(i));
+    if (i == b) break;
+  }
+  if (pts.size() == 1) pts.push_back(pts[0]);
+  std::vector<double> cum(pts.size(), 0.0);
+  for (std::size_t i = 1; i < pts.size(); ++i) cum[i] = cum[i - 1] + (pts[i] - pts[i - 1]).norm();
+  const double total = cum.back();
+  std::size_t seg = 0;
+  for (int k = 0; k < m; ++k) {
+    const double target = total * k / m;
+    while (seg + 2 < pts.size() && cum[seg + 1] < target) ++seg;
+    const double len = cum[seg + 1] - cum[seg];
+    const double t = len > 0 ? std::clamp((target - cum[seg]) / len, 0.0, 1.0) : 0.0;
+    out.row(out_row + k) = ((1 - t) * pts[seg] + t * pts[seg + 1]).transpose();
+  }
+}
+
+}  // namespace
+
+struct TemplateMapper::Slices {
+  int samples = 0;              // points per contour (multiple of 4)
+  Poly2 square;                 // #samples x 2 unit-square boundary
+  std::vector<Points3> contour;  // per slice: #samples x 3 points matching `square`
+  std::vector<Poly2> contour_xy;  // the same in box (x, y) coordinates
+};
+
+TemplateMapper::~TemplateMapper() = default;
+TemplateMapper::TemplateMapper(TemplateMapper&&) noexcept = default;
+TemplateMapper& TemplateMapper::operator=(TemplateMapper&&) noexcept = default;
+
+TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
+                               const TemplateMapOptions& options)
+    : options_(options), areas_(areas), muscle_(muscle) {
+  if (options.num_slices < 2 || options.contour_samples < 8)
+    throw_usage("template mapping needs at least 2 slices and 8 contour samples");
+  // Box frame: z from the origin to the insertion centroid; y the widest direction across it.
+  const Vec3 d = areas.insertion.centroid - areas.origin.centroid;
+  if (!(d.norm() > 0.0))
+    throw_bad_input("the origin and insertion areas have the same centroid",
+                    {.suggestion = "give attachment areas at the two ends of the muscle"});
+  const Vec3 ez = d.normalized();
+  const Vec3 mean = muscle.V.colwise().mean();
+  Points3 D = muscle.V.rowwise() - mean.transpose();
+  D -= (D * ez) * ez.transpose();
+  const Eigen::SelfAdjointEigenSolver<Mat3> eig(D.transpose() * D);
+  Vec3 ey = eig.eigenvectors().col(2);
+  ey = (ey - ey.dot(ez) * ez).normalized();
+  const Vec3 ex = ey.cross(ez);
+  // Axial range: from the origin level to the insertion level, kept clear of the tips.
+  const VecX s = muscle.V * ez;
+  const double smin = s.minCoeff(), smax = s.maxCoeff();
+  const double margin = options.end_margin * (smax - smin);
+  const double a = std::clamp(areas.origin.centroid.dot(ez), smin + margin, smax - margin);
+  const double b = std::clamp(areas.insertion.centroid.dot(ez), smin + margin, smax - margin);
+  if (!(b > a)) throw_bad_input("the attachment areas are not at the two ends of the muscle");
+  axial_length_ = b - a;
+  Mat3 R;
+  R << ex, ey, ez;
+  X_mesh_box_.linear() = R;
+  X_mesh_box_.translation() = mean + (a - mean.dot(ez)) * ez;
+
+  slices_ = std::make_unique<Slices>();
+  slices_->samples = options.contour_samples / 4 * 4;
+  slices_->square = make_square_boundary(slices_->samples);
+  const int K = options.num_slices;
+  VecX offsets(K);
+  for (int k = 0; k < K; ++k) offsets(k) = a + (b - a) * k / (K - 1);
+  const auto cuts = slice_mesh_parallel(muscle, ez, offsets);
+  const int q = slices_->samples / 4;
+  for (int k = 0; k < K; ++k) {
+    // The largest closed contour; other sizeable ones make the slice an issue.
+    int best = -1;
+    double best_area = 0.0;
+    std::vector<double> areas_k;
+    for (std::size_t c = 0; c < cuts[k].size(); ++c) {
+      if (!cuts[k][c].closed) continue;
+      const double A = compute_contour_area(cuts[k][c], ez);
+      areas_k.push_back(A);
+      if (A > best_area) {
+        best_area = A;
+        best = static_cast<int>(c);
+      }
+    }
+    if (best < 0)
+      throw_bad_input("a slice of the muscle between its attachment areas has no closed contour",
+                      {.suggestion = "check the mesh is closed (run the mesh check/repair)"});
+    const int sizeable = static_cast<int>(
+        std::count_if(areas_k.begin(), areas_k.end(), [&](double A) { return A > 0.05 * best_area; }));
+    if (sizeable > 1) {
+      SliceIssue issue;
+      issue.axial_position_m = offsets(k) - a;
+      issue.point = X_mesh_box_.translation() + issue.axial_position_m * ez;
+      issue.num_contours = sizeable;
+      issues_.push_back(issue);
+    }
+    const Points3& C = cuts[k][best].points;
+    const int n = static_cast<int>(C.rows());
+    // Contour in box coordinates, normalised by its bounding box.
+    Poly2 xy(n, 2);
+    xy.col(0) = C * ex;
+    xy.col(1) = C * ey;
+    const Eigen::RowVector2d lo = xy.colwise().minCoeff(), hi = xy.colwise().maxCoeff();
+    const Eigen::RowVector2d ext = (hi - lo).cwiseMax(1e-300);
+    // Corners: the extreme contour points in the four diagonal directions.
+    std::array<int, 4> corner{};
+    const std::array<Vec2, 4> dir{Vec2(-1, -1), Vec2(1, -1), Vec2(1, 1), Vec2(-1, 1)};
+    for (int j = 0; j < 4; ++j) {
+      double best_v = -1e300;
+      for (int i = 0; i < n; ++i) {
+        const Vec2 u = ((xy.row(i) - lo).cwiseQuotient(ext)).transpose();
+        const double v = dir[j].dot(u);
+        if (v > best_v) {
+          best_v = v;
+          corner[j] = i;
+        }
+      }
+    }
+    const auto offset = [&](int j) { return (corner[j] - corner[0] + n) % n; };
+    const bool ordered = offset(1) > 0 && offset(2) > offset(1) && offset(3) > offset(2);
+    if (!ordered) {
+      // Fall back to equal arc-length quarters from the first corner.
+      std::vector<double> cum(n + 1, 0.0);
+      for (int i = 0; i < n; ++i)
+        cum[i + 1] = cum[i] + (C.row((corner[0] + i + 1) % n) - C.row((corner[0] + i) % n)).norm();
+      for (int j = 1; j < 4; ++j) {
+        const double target = cum[n] * j / 4.0;
+        const int i = static_cast<int>(std::lower_bound(cum.begin(), cum.end(), target) - cum.begin());
+        corner[j] = (corner[0] + std::clamp(i, j, n - 4 + j)) % n;
+      }
+    }
+    Points3 out(slices_->samples, 3);
+    for (int j = 0; j < 4; ++j) resample_piece(C, corner[j], corner[(j + 1) % 4], q, out, j * q);
+    Poly2 out_xy(out.rows(), 2);
+    const Points3 rel = out.rowwise() - X_mesh_box_.translation().transpose();
+    out_xy.col(0) = rel * ex;
+    out_xy.col(1) = rel * ey;
+    slices_->contour.push_back(std::move(out));
+    slices_->contour_xy.push_back(std::move(out_xy));
+  }
+  query_ = std::make_unique<MeshQuery>(muscle);
+}
+
+namespace {
+
+// Laplacian smoothing of the interior points (ends fixed).
+void smooth(Points3& P, int iterations) {
+  for (int it = 0; it < iterations; ++it) {
+    const Points3 Q = P;
+    for (Eigen::Index k = 1; k + 1 < P.rows(); ++k)
+      P.row(k) = 0.5 * Q.row(k) + 0.25 * (Q.row(k - 1) + Q.row(k + 1));
+  }
+}
+
+// Signed 2-D clearance of p from a closed polygon: distance to its nearest edge, positive inside
+// (even-odd rule), negative outside.
+double calc_clearance(const Poly2& poly, const Vec2& p) {
+  const Eigen::Index n = poly.rows();
+  bool inside = false;
+  double d2 = std::numeric_limits<double>::infinity();
+  for (Eigen::Index i = 0, j = n - 1; i < n; j = i++) {
+    const Vec2 a = poly.row(j), b = poly.row(i);
+    if ((b.y() > p.y()) != (a.y() > p.y()) &&
+        p.x() < (a.x() - b.x()) * (p.y() - b.y()) / (a.y() - b.y()) + b.x())
+      inside = !inside;
+    const Vec2 e = b - a;
+    const double t = std::clamp((p - a).dot(e) / std::max(e.squaredNorm(), 1e-300), 0.0, 1.0);
+    d2 = std::min(d2, (a + t * e - p).squaredNorm());
+  }
+  return inside ? std::sqrt(d2) : -std::sqrt(d2);
+}
+
+}  // namespace
+
+FibreSet TemplateMapper::calc_fibres(const FibreSet& unit_fibres, bool reroute_ends) const {
+  const Slices& S = *slices_;
+  const int K = static_cast<int>(S.contour.size());
+  const int n = S.samples;
+  const int q = n / 4;
+  FibreSet out;
+  out.fibres.resize(unit_fibres.size());
+  // Map every template point: MVC weights in the unit square, blended between the two slices.
+  for (std::size_t f = 0; f < unit_fibres.size(); ++f) {
+    const Points3& T = unit_fibres.fibres[f];
+    Points3 P(T.rows(), 3);
+    for (Eigen::Index k = 0; k < T.rows(); ++k) {
+      const Vec2 uv(std::clamp(T(k, 0), 0.0, 1.0), std::clamp(T(k, 1), 0.0, 1.0));
+      const double kappa = std::clamp(T(k, 2), 0.0, 1.0) * (K - 1);
+      const int k0 = std::min(static_cast<int>(kappa), K - 2);
+      const double beta = kappa - k0;
+      const double eps = 1e-9;
+      Vec3 p0, p1;
+      const bool on_boundary = uv.minCoeff() < eps || uv.maxCoeff() > 1 - eps;
+      if (on_boundary) {
+        // Perimeter parameter of the square boundary (counter-clockwise from (0,0)), in samples.
+        double t;
+        if (uv.y() < eps) t = uv.x();
+        else if (uv.x() > 1 - eps) t = 1 + uv.y();
+        else if (uv.y() > 1 - eps) t = 2 + (1 - uv.x());
+        else t = 3 + (1 - uv.y());
+        const double idx = t * q;
+        const int i0 = static_cast<int>(std::floor(idx)) % n;
+        const int i1 = (i0 + 1) % n;
+        const double w = idx - std::floor(idx);
+        p0 = (1 - w) * S.contour[k0].row(i0) + w * S.contour[k0].row(i1);
+        p1 = (1 - w) * S.contour[k0 + 1].row(i0) + w * S.contour[k0 + 1].row(i1);
+      } else {
+        const VecX lambda = calc_mean_value_coordinates(S.square, uv);
+        p0 = S.contour[k0].transpose() * lambda;
+        p1 = S.contour[k0 + 1].transpose() * lambda;
+      }
+      P.row(k) = ((1 - beta) * p0 + beta * p1).transpose();
+    }
+    out.fibres[f] = std::move(P);
+  }
+  // Re-route the ends of end-to-end fibres over the whole attachment areas (seed 002, section 3):
+  // the part near each end is replaced by a segment to a point of the area; area points are
+  // matched to fibres greedily by distance to the fibre's extrapolated end.
+  if (reroute_ends && !out.fibres.empty()) {
+    const int count = static_cast<int>(out.fibres.size());
+    const auto reroute = [&](bool at_origin) {
+      const AttachmentArea& area = at_origin ? areas_.origin : areas_.insertion;
+      const Points3 targets = calc_area_samples(muscle_, area, count);
+      std::vector<Vec3> guess(count);
+      std::vector<Eigen::Index> cut(count);
+      for (int f = 0; f < count; ++f) {
+        const Points3& P = out.fibres[f];
+        const Eigen::Index m = P.rows();
+        const Eigen::Index c = std::clamp<Eigen::Index>(
+            static_cast<Eigen::Index>(std::lround(options_.reroute_fraction * (m - 1))), 1, m / 2 - 0);
+        const Eigen::Index keep = at_origin ? c : m - 1 - c;
+        const Eigen::Index inner = at_origin ? keep + 1 : keep - 1;
+        const Vec3 pk = P.row(keep), pi = P.row(std::clamp<Eigen::Index>(inner, 0, m - 1));
+        const Vec3 end = P.row(at_origin ? 0 : m - 1);
+        const Vec3 dir = (pk - pi).norm() > 0 ? Vec3((pk - pi).normalized()) : Vec3::Zero();
+        guess[f] = pk + dir * (end - pk).norm();
+        cut[f] = keep;
+      }
+      // Greedy global matching by distance.
+      std::vector<std::pair<double, std::int64_t>> pairs;
+      pairs.reserve(static_cast<std::size_t>(count) * count);
+      for (int f = 0; f < count; ++f)
+        for (int t = 0; t < count; ++t)
+          pairs.emplace_back((guess[f] - Vec3(targets.row(t))).squaredNorm(),
+                             static_cast<std::int64_t>(f) * count + t);
+      std::sort(pairs.begin(), pairs.end());
+      std::vector<int> target_of(count, -1);
+      std::vector<char> used(count, 0);
+      int assigned = 0;
+      for (const auto& [d2, ft] : pairs) {
+        const int f = static_cast<int>(ft / count), t = static_cast<int>(ft % count);
+        if (target_of[f] >= 0 || used[t]) continue;
+        target_of[f] = t;
+        used[t] = 1;
+        if (++assigned == count) break;
+      }
+      for (int f = 0; f < count; ++f) {
+        Points3& P = out.fibres[f];
+        const Eigen::Index m = P.rows();
+        const Vec3 end = targets.row(target_of[f]);
+        const Vec3 pk = P.row(cut[f]);
+        const Eigen::Index c = at_origin ? cut[f] : m - 1 - cut[f];
+        // Replace the c removed points by points on the segment to the area.
+        for (Eigen::Index j = 0; j < c; ++j) {
+          const double t = static_cast<double>(c - j) / c;  // 1 at the end, -> 0 at the cut
+          const Eigen::Index row = at_origin ? j : m - 1 - j;
+          P.row(row) = (t * end + (1 - t) * pk).transpose();
+        }
+      }
+    };
+    reroute(true);
+    reroute(false);
+  }
+  // Smooth, resample, and pull points the map left outside back inside the surface.
+  const double inside_margin = 1e-5;
+  const Mat3 R = X_mesh_box_.linear();
+  const Vec3 o = X_mesh_box_.translation();
+  // Points well inside the contours of both neighbouring slices skip the 3-D test.
+  // (Between slices the surface departs from the linear blend by about spacing^2 * curvature / 8,
+  // a few hundredths of the spacing for muscle shapes.)
+  const double spacing = axial_length_ / std::max(K - 1, 1);
+  const double clear_enough = 0.1 * spacing;
+  for (Points3& P : out.fibres) {
+    smooth(P, options_.smoothing_iterations);
+    P = resample_polyline(P, static_cast<int>(P.rows()));
+    for (Eigen::Index k = 0; k < P.rows(); ++k) {
+      const Vec3 p = P.row(k);
+      const Vec3 p_box = R.transpose() * (p - o);
+      const double kappa = p_box.z() / axial_length_ * (K - 1);
+      if (kappa > 0.0 && kappa < K - 1) {
+        const int k0 = std::min(static_cast<int>(kappa), K - 2);
+        const Vec2 xy = p_box.head<2>();
+        if (calc_clearance(S.contour_xy[k0], xy) > clear_enough &&
+            calc_clearance(S.contour_xy[k0 + 1], xy) > clear_enough)
+          continue;
+      }
+      ClosestPoint c = query_->calc_closest_point(p, 2.0 * spacing);
+      if (c.triangle < 0) {
+        // Far from the surface: deep inside, or far outside a strongly concave contour.
+        if (query_->calc_is_inside(p)) continue;
+        c = query_->calc_closest_point(p);
+      }
+      const auto t = muscle_.F.row(c.triangle);
+      const Vec3 a = muscle_.V.row(t(0)), b = muscle_.V.row(t(1)), cc = muscle_.V.row(t(2));
+      const Vec3 normal = (b - a).cross(cc - a).normalized();
+      // Side by the face normal when the closest point is inside the face; otherwise (edge or
+      // vertex, where the face normal may mislead) by the robust inside test.
+      const bool interior_hit = c.barycentric.minCoeff() > 1e-9;
+      const bool inside = interior_hit ? (p - c.point).dot(normal) < 0.0 : query_->calc_is_inside(p);
+      if (inside && c.distance >= inside_margin) continue;
+      P.row(k) = (c.point - inside_margin * normal).transpose();
+    }
+  }
+  return out;
+}
+
+}  // namespace fascicle

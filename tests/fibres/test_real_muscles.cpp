@@ -1,0 +1,223 @@
+// Quality invariants of both decomposition methods on real muscle meshes (Visible Human female
+// right leg; Bolsterlee in-vivo MRI), with coarse settings to keep the test fast.
+#include "fascicle/fibres/analysis.hpp"
+#include "fascicle/fibres/fibre_set.hpp"
+#include "fascicle/fibres/decompose.hpp"
+#include "fascicle/geometry/mesh_query.hpp"
+#include "fascicle/io/mesh_io.hpp"
+#include "test_support.hpp"
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+
+using namespace fascicle;
+
+namespace {
+
+struct Case {
+  std::string name;
+  std::string mesh;                // relative to the data folder
+  std::vector<std::string> bones;  // bones touching the muscle (may be empty)
+  double ward_fibre_length_m;      // Ward et al. 2009 optimal fibre length
+};
+
+const std::string vh = "visible_human_female/right/VHF_Right_";
+
+std::vector<Case> cases() {
+  return {
+      {"soleus", vh + "Muscle_Soleus_smooth.stl",
+       {vh + "Bone_Tibia_smooth.stl", vh + "Bone_Fibula_smooth.stl"}, 0.0440},
+      {"tibialis_anterior", vh + "Muscle_TibialisAnterior_smooth.stl",
+       {vh + "Bone_Tibia_smooth.stl"}, 0.0683},
+      {"medial_gastrocnemius", vh + "Muscle_GastrocnemiusMedial_smooth.stl", {}, 0.0510},
+      {"vastus_lateralis", vh + "Muscle_VastusLateralis_smooth.stl", {}, 0.0994},
+      {"gluteus_medius", vh + "Muscle_GluteusMedius_smooth.stl", {}, 0.0733},
+      {"bolsterlee_MG", "bolsterlee_dti/MG.stl", {}, 0.0510},
+      {"bolsterlee_TA", "bolsterlee_dti/TA.stl", {}, 0.0683},
+  };
+}
+
+Attachments find_areas(const Case& c, const TriMesh& muscle) {
+  if (c.bones.empty()) return find_end_attachments(muscle);
+  std::vector<TriMesh> bones;
+  for (const auto& b : c.bones) bones.push_back(read_mesh(test::data_path(b), LengthUnit::millimetre));
+  return find_bone_attachments(muscle, bones, 0.002);
+}
+
+// Area of the 2-D convex hull (Andrew's monotone chain) of points projected on the plane normal
+// to n.
+double calc_projected_hull_area(const std::vector<Vec3>& pts, const Vec3& n) {
+  const Vec3 u = n.unitOrthogonal(), v = n.normalized().cross(u);
+  std::vector<Vec2> p;
+  for (const Vec3& q : pts) p.emplace_back(q.dot(u), q.dot(v));
+  std::sort(p.begin(), p.end(), [](const Vec2& a, const Vec2& b) {
+    return a.x() != b.x() ? a.x() < b.x() : a.y() < b.y();
+  });
+  if (p.size() < 3) return 0.0;
+  const auto cross = [](const Vec2& o, const Vec2& a, const Vec2& b) {
+    return (a - o).x() * (b - o).y() - (a - o).y() * (b - o).x();
+  };
+  std::vector<Vec2> h(2 * p.size());
+  std::size_t k = 0;
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    while (k >= 2 && cross(h[k - 2], h[k - 1], p[i]) <= 0) --k;
+    h[k++] = p[i];
+  }
+  for (std::size_t i = p.size() - 1, t = k + 1; i-- > 0;) {
+    while (k >= t && cross(h[k - 2], h[k - 1], p[i]) <= 0) --k;
+    h[k++] = p[i];
+  }
+  h.resize(k - 1);
+  double area = 0.0;
+  for (std::size_t i = 0; i < h.size(); ++i) {
+    const Vec2& a = h[i];
+    const Vec2& b = h[(i + 1) % h.size()];
+    area += a.x() * b.y() - a.y() * b.x();
+  }
+  return 0.5 * std::abs(area);
+}
+
+// The targets are asserted; the combinations measured below them (listed in docs/fibres.md
+// as open problems) are held to a regression floor a little under their measured value instead.
+double find_floor(const std::string& name, FibreMethod method, const std::string& metric,
+                  double target) {
+  struct Shortfall {
+    const char* name;
+    FibreMethod method;
+    const char* metric;
+    double floor;
+  };
+  const FibreMethod T = FibreMethod::template_map, H = FibreMethod::harmonic;
+  static const Shortfall known[] = {
+      {"soleus", T, "origin_spread", 0.20},       {"soleus", T, "coverage", 0.70},
+      {"tibialis_anterior", T, "origin_spread", 0.65}, {"tibialis_anterior", T, "insertion_spread", 0.75},
+      {"tibialis_anterior", T, "coverage", 0.70}, {"tibialis_anterior", T, "smooth", 0.50},
+      {"medial_gastrocnemius", T, "coverage", 0.85}, {"gluteus_medius", T, "coverage", 0.85},
+      {"bolsterlee_MG", T, "insertion_spread", 0.70}, {"bolsterlee_TA", T, "coverage", 0.85},
+      {"soleus", H, "origin_spread", 0.20},       {"soleus", H, "insertion_spread", 0.50},
+      {"soleus", H, "coverage", 0.55},            {"tibialis_anterior", H, "origin_spread", 0.65},
+      {"tibialis_anterior", H, "insertion_spread", 0.15}, {"tibialis_anterior", H, "coverage", 0.60},
+      {"medial_gastrocnemius", H, "insertion_spread", 0.65},
+      {"medial_gastrocnemius", H, "coverage", 0.60}, {"vastus_lateralis", H, "ends", 0.55},
+      {"vastus_lateralis", H, "insertion_spread", 0.70}, {"vastus_lateralis", H, "coverage", 0.85},
+      {"gluteus_medius", H, "insertion_spread", 0.55}, {"gluteus_medius", H, "coverage", 0.80},
+      {"bolsterlee_MG", H, "ends", 0.60},         {"bolsterlee_MG", H, "coverage", 0.80},
+      {"bolsterlee_TA", H, "insertion_spread", 0.50}, {"bolsterlee_TA", H, "coverage", 0.70},
+  };
+  for (const Shortfall& k : known)
+    if (name == k.name && method == k.method && metric == k.metric) return k.floor;
+  return target;
+}
+
+double ms_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+}  // namespace
+
+class RealMuscle : public ::testing::TestWithParam<std::tuple<int, FibreMethod>> {};
+
+TEST_P(RealMuscle, FibresSatisfyQualityInvariants) {
+  const Case c = cases()[std::get<0>(GetParam())];
+  const FibreMethod method = std::get<1>(GetParam());
+  const TriMesh muscle = read_mesh(test::data_path(c.mesh), LengthUnit::millimetre);
+  const auto t0 = std::chrono::steady_clock::now();
+  const Attachments areas = find_areas(c, muscle);
+  DecomposeOptions opt;
+  opt.method = method;
+  opt.count = 100;
+  opt.resolution = 12;
+  opt.harmonic.tets.max_radius_edge_ratio = 0.0;  // coarse: boundary-constrained tets only
+  const Decomposition d = decompose_muscle(muscle, areas, opt);
+  const double t_ms = ms_since(t0);
+  ASSERT_GE(d.fibres.size(), 95u);
+  const MeshQuery query(muscle);
+  // Inside: every point at most 0.1 mm outside.
+  double worst_outside = -1.0;
+  for (const Points3& P : d.fibres.fibres) {
+    const VecX s = query.calc_signed_distances(P);
+    worst_outside = std::max(worst_outside, s.maxCoeff());
+  }
+  EXPECT_LE(worst_outside, 1e-4) << c.name;
+  // Ends on their areas (within 1 mm of an area vertex set's triangles via the nearest surface
+  // point being an area triangle), smoothness (turning angle per segment).
+  const auto on_area = [&](const Vec3& p, const AttachmentArea& a) {
+    const ClosestPoint cp = query.calc_closest_point(p);
+    return cp.distance < 1e-3 &&
+           std::binary_search(a.vertices.begin(), a.vertices.end(), muscle.F(cp.triangle, 0));
+  };
+  int ends_ok = 0;
+  double worst_turn = 0.0;
+  int smooth_fibres = 0;  // fibres turning less than 45 degrees at every point
+  std::vector<double> lengths;
+  for (const Points3& P : d.fibres.fibres) {
+    const Eigen::Index n = P.rows();
+    ends_ok += on_area(P.row(0), areas.origin) && on_area(P.row(n - 1), areas.insertion);
+    double turn = 0.0;
+    for (Eigen::Index k = 1; k + 1 < n; ++k) {
+      const Vec3 a = P.row(k) - P.row(k - 1), b = P.row(k + 1) - P.row(k);
+      turn = std::max(turn, std::acos(std::clamp(a.normalized().dot(b.normalized()), -1.0, 1.0)));
+    }
+    worst_turn = std::max(worst_turn, turn);
+    smooth_fibres += turn < 45.0 * M_PI / 180;
+    lengths.push_back(calc_polyline_length(P));
+  }
+  std::sort(lengths.begin(), lengths.end());
+  const double median = lengths[lengths.size() / 2];
+  std::printf("%-22s %-8s %7.0f ms  fibres %3zu  ends-on-areas %5.1f%%  outside %.3f mm  "
+              "max turn %5.1f deg  median length %6.1f mm (Ward %5.1f mm)\n",
+              c.name.c_str(), to_string(d.method_used).c_str(), t_ms, d.fibres.size(),
+              100.0 * ends_ok / d.fibres.size(), worst_outside * 1e3, worst_turn * 180 / M_PI,
+              median * 1e3, c.ward_fibre_length_m * 1e3);
+  const double n_fibres = static_cast<double>(d.fibres.size());
+  EXPECT_GE(ends_ok / n_fibres, find_floor(c.name, method, "ends", 0.9)) << c.name;
+  EXPECT_GE(smooth_fibres / n_fibres, find_floor(c.name, method, "smooth", 0.9)) << c.name;
+  // Spread: the hull of the fibre ends covers >= 80% of the hull of the area.
+  for (const bool origin : {true, false}) {
+    const AttachmentArea& a = origin ? areas.origin : areas.insertion;
+    std::vector<Vec3> ends, area_pts;
+    for (const Points3& P : d.fibres.fibres) ends.emplace_back(P.row(origin ? 0 : P.rows() - 1));
+    for (int f : a.triangles)
+      for (int k = 0; k < 3; ++k) area_pts.emplace_back(muscle.V.row(muscle.F(f, k)));
+    const double ratio = calc_projected_hull_area(ends, a.normal) /
+                         calc_projected_hull_area(area_pts, a.normal);
+    std::printf("    %s spread %.2f\n", a.name.c_str(), ratio);
+    EXPECT_GE(ratio, find_floor(c.name, method, a.name + "_spread", 0.8)) << c.name << " " << a.name;
+  }
+  // Coverage: 95% of interior points lie within 1.5 sqrt(cross-section area / count) of a fibre.
+  {
+    const double length = (areas.insertion.centroid - areas.origin.centroid).norm();
+    const double section = calc_enclosed_volume(muscle) / length;
+    const double radius = 1.5 * std::sqrt(section / d.fibres.size());
+    std::vector<Vec3> fibre_pts;
+    for (const Points3& P : d.fibres.fibres) {
+      const Points3 R = resample_polyline(P, 8 * static_cast<int>(P.rows()));
+      for (Eigen::Index k = 0; k < R.rows(); ++k) fibre_pts.emplace_back(R.row(k));
+    }
+    const Vec3 lo = muscle.V.colwise().minCoeff(), hi = muscle.V.colwise().maxCoeff();
+    int inside = 0, covered = 0;
+    for (int i = 0; inside < 400 && i < 20000; ++i) {
+      // Deterministic scattered points (3-D golden-ratio sequence).
+      const Vec3 r(std::fmod(0.5 + i * 0.8191725133961645, 1.0),
+                   std::fmod(0.5 + i * 0.6710436067037893, 1.0),
+                   std::fmod(0.5 + i * 0.5497004779019703, 1.0));
+      const Vec3 p = lo + r.cwiseProduct(hi - lo);
+      if (!query.calc_is_inside(p)) continue;
+      ++inside;
+      double best = 1e300;
+      for (const Vec3& q : fibre_pts) best = std::min(best, (q - p).squaredNorm());
+      covered += std::sqrt(best) <= radius;
+    }
+    std::printf("    coverage %.1f%% within %.1f mm\n", 100.0 * covered / inside, radius * 1e3);
+    EXPECT_GE(static_cast<double>(covered) / inside, find_floor(c.name, method, "coverage", 0.95))
+        << c.name;
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Fibres, RealMuscle,
+                         ::testing::Combine(::testing::Range(0, 7),
+                                            ::testing::Values(FibreMethod::template_map,
+                                                              FibreMethod::harmonic)));
