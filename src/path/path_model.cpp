@@ -130,23 +130,29 @@ void apply_wrap(const PathSetModel& model, const CompiledPath& path, int w,
   ws.X_ground_wrap = X_ground_body[obj.body] * obj.spec.X_body_wrap;
   const Transform X_wrap_ground = ws.X_ground_wrap.inverse();
   int best_at = -1;
-  double best_arc = std::numeric_limits<double>::infinity();
+  double best_change = std::numeric_limits<double>::infinity();
   for (int j = jfwd; j < jrev; ++j) {
     const PathVertex& a = out.vertices[j];
     const PathVertex& b = out.vertices[j + 1];
     if (a.wrap >= 0 && a.wrap == b.wrap) continue;  // the arc of another wrap
-    const WrapResult r = wrap_segment(obj.spec, X_wrap_ground * a.p_ground,
-                                      X_wrap_ground * b.p_ground, model.options.cylinder_ends);
+    const Vec3 p1 = X_wrap_ground * a.p_ground, p2 = X_wrap_ground * b.p_ground;
+    const WrapResult r = wrap_segment(obj.spec, p1, p2, model.options.cylinder_ends);
     ws.status = r.status;
     if (r.status == WrapStatus::mandatory) {
       best_at = j;
       ws.result = r;
       break;
     }
-    if (r.status == WrapStatus::wrapped && r.arc_length < best_arc) {
-      best_arc = r.arc_length;
-      best_at = j;
-      ws.result = r;
+    // OpenSim (GeometryPath::calcPathLengthChange): of several wrapped segments, the one whose
+    // length grows least by the wrap.
+    if (r.status == WrapStatus::wrapped) {
+      const double change =
+          (r.t1 - p1).norm() + r.arc_length + (p2 - r.t2).norm() - (p2 - p1).norm();
+      if (change < best_change) {
+        best_change = change;
+        best_at = j;
+        ws.result = r;
+      }
     }
   }
   if (best_at < 0) return;
@@ -322,7 +328,7 @@ VecX calc_moment_arms(const PathSetModel& model, int path, const PathResult& res
   calc_path_unit_forces(model, path, result, X_ground_body, q, uf);
   const Eigen::Index nu = jacobians.dq_du.cols();
   VecX r = -jacobians.dq_du.transpose() * uf.dL_dq_explicit;
-  for (const PointForce& pf : uf.forces) {
+  for (const PathPointForce& pf : uf.forces) {
     const auto& J = jacobians.J[pf.body];
     if (J.cols() != nu) continue;  // a body without mobility (ground) may have an empty Jacobian
     r += J.topRows<3>().transpose() * pf.p_ground.cross(pf.f_ground) +

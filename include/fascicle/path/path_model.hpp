@@ -108,7 +108,7 @@ struct BodyJacobians {
 };
 
 // A force on a body at a point, both in ground.
-struct PointForce {
+struct PathPointForce {
   int32_t body = -1;
   Vec3 p_ground = Vec3::Zero();
   Vec3 f_ground = Vec3::Zero();
@@ -119,7 +119,7 @@ struct PointForce {
 // each coordinate through MovingPathPoints' location functions (#coordinates). The generalized
 // forces of these forces minus dq_duᵀ·dL_dq_explicit are the moment arms.
 struct PathUnitForces {
-  std::vector<PointForce> forces;
+  std::vector<PathPointForce> forces;
   VecX dL_dq_explicit;
 };
 void calc_path_unit_forces(const PathSetModel& model, int path, const PathResult& result,
