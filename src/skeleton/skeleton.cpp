@@ -609,6 +609,43 @@ VecX calc_generalized_forces(const Skeleton& skeleton, const SkeletonState& s,
   return s.get_coupling().transpose() * tau;
 }
 
+void calc_body_jacobians(const Skeleton& skeleton, const SkeletonState& s,
+                         std::vector<Eigen::Matrix<double, 6, Eigen::Dynamic>>& J) {
+  if (s.stage() < SkeletonStage::pose) throw_usage("calc_body_jacobians needs a posed state");
+  const Skeleton::Impl& m = skeleton.impl();
+  const SimTK::State& st = s.impl().state;
+  const int nb = skeleton.num_bodies();
+  const int nc = skeleton.num_coordinates();
+  // Simbody's frame Jacobian of a frame on each body whose origin is the body point now at the
+  // ground origin (station -Rᵀp in the body frame).
+  SimTK::Array_<SimTK::MobilizedBodyIndex> bodies(nb - 1);
+  SimTK::Array_<SimTK::Vec3> stations(nb - 1);
+  for (int b = 1; b < nb; ++b) {
+    const Transform& X = s.get_body_transform(b);
+    bodies[b - 1] = m.mobod[b];
+    stations[b - 1] = to_simtk(Vec3(-(X.linear().transpose() * X.translation())));
+  }
+  SimTK::Matrix_<SimTK::SpatialVec> JF;
+  if (nb > 1) m.matter->calcFrameJacobian(st, bodies, stations, JF);
+  const MatX& C = s.get_coupling();
+  J.resize(nb);
+  Eigen::Matrix<double, 6, Eigen::Dynamic> Ju(6, nc);
+  for (int b = 0; b < nb; ++b) {
+    if (b == 0) {
+      J[0].setZero(6, nc);
+      continue;
+    }
+    for (int j = 0; j < nc; ++j) {
+      const SimTK::SpatialVec& v = JF(b - 1, m.coord_q[j]);
+      for (int k = 0; k < 3; ++k) {
+        Ju(k, j) = v[0][k];
+        Ju(3 + k, j) = v[1][k];
+      }
+    }
+    J[b].noalias() = Ju * C;
+  }
+}
+
 double calc_constraint_error(const Skeleton& skeleton, const SkeletonState& s) {
   if (s.stage() < SkeletonStage::pose) throw_usage("calc_constraint_error needs a posed state");
   const SimTK::Vector& err = s.impl().state.getQErr();

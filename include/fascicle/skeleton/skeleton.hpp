@@ -227,6 +227,16 @@ struct PointForce {
 VecX calc_generalized_forces(const Skeleton& skeleton, const SkeletonState& state,
                              const std::vector<PointForce>& forces, VecX* uncoupled = nullptr);
 
+// Requires stage() >= pose. Velocity Jacobians of every body (#bodies, the ground included) along
+// the constraint manifold: J[b] is 6×#coordinates; rows 0–2 are the angular velocity of body b,
+// rows 3–5 the velocity of the point of body b that is at the ground origin, both in ground, per
+// unit speed of coordinate j. Column j already carries the coupling (J_uncoupled·C): a dependent
+// coordinate moves with its independent one, and the columns of dependent coordinates are zero.
+// The body point at the ground origin makes the velocity of any station p (in ground) of body b
+// v = J[b].bottomRows(3)·q̇ + (J[b].topRows(3)·q̇) × p.
+void calc_body_jacobians(const Skeleton& skeleton, const SkeletonState& state,
+                         std::vector<Eigen::Matrix<double, 6, Eigen::Dynamic>>& J);
+
 // Requires stage() >= pose. The largest absolute position-constraint error of the Simbody system
 // (coupler residuals) — zero after calc_pose up to rounding.
 double calc_constraint_error(const Skeleton& skeleton, const SkeletonState& state);
