@@ -385,7 +385,7 @@ TEST(MeshQuery, VisibleHumanTibiaAgainstBruteForce) {
   const TriMesh tibia =
       read_binary_stl_mm(test::data_path("visible_human_female/right/VHF_Right_Bone_Tibia_smooth.stl"));
   ASSERT_GT(tibia.F.rows(), 50000);
-  check_against_brute_force(tibia, 150, 60, 41);
+  check_against_brute_force(tibia, 100, 50, 41);
 }
 
 }  // namespace
