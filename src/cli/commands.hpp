@@ -13,6 +13,7 @@ struct Invocation {
 };
 
 void add_demo_commands(CLI::App& app, Invocation& run);  // cmd_demo.cpp
+void add_run_commands(CLI::App& app, Invocation& run);   // cmd_run.cpp
 void add_muscle_commands(CLI::App& app, Invocation& run);  // cmd_muscle.cpp
 void add_solid_commands(CLI::App& app, Invocation& run);  // cmd_solid.cpp
 

@@ -25,6 +25,7 @@ int main(int argc, char** argv) {
 
   fascicle::cli::Invocation run;
   fascicle::cli::add_demo_commands(app, run);
+  fascicle::cli::add_run_commands(app, run);
   fascicle::cli::add_muscle_commands(app, run);
   fascicle::cli::add_solid_commands(app, run);
 

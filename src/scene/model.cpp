@@ -135,13 +135,31 @@ std::vector<Transform> calc_body_transforms(const Model& model, const VecX& q) {
   if (q.size() != model.num_coordinates())
     throw_internal("calc_body_transforms: q has " + std::to_string(q.size()) + " values, expected " +
                    std::to_string(model.num_coordinates()));
-  std::vector<Transform> X(model.bodies.size(), Transform::Identity());
-  for (const Joint& j : model.joints) {
-    const double* qj = j.num_coordinates > 0 ? q.data() + j.first_coordinate.v : nullptr;
-    X[j.child.v] = X[j.parent.v] * j.X_parent_F * j.kinematics->calc_X_F_M(qj) * j.X_child_M.inverse();
-  }
-  return X;
+  SkeletonState state(*model.skeleton);
+  calc_pose(*model.skeleton, q, state);
+  return state.get_body_transforms();
 }
+
+namespace {
+
+// The skeleton of the scene: bodies with their mass properties, joints from the registry.
+SkeletonSpec make_skeleton_spec(const Model& model, const std::vector<JointSpec>& joints) {
+  SkeletonSpec s;
+  s.name = model.name;
+  for (size_t b = 1; b < model.bodies.size(); ++b) {
+    const Body& body = model.bodies[b];
+    BodySpec bs;
+    bs.name = body.name;
+    bs.mass = body.mass_kg;
+    bs.com = body.center_of_mass;
+    bs.inertia = body.inertia;
+    s.bodies.push_back(bs);
+  }
+  s.joints = joints;
+  return s;
+}
+
+}  // namespace
 
 Model compile(const SceneSpec& spec, const Registry& registry) {
   Model model;
@@ -158,8 +176,10 @@ Model compile(const SceneSpec& spec, const Registry& registry) {
     model.bodies.push_back(compile_body(b));
   }
 
-  // Joints, unordered first; then ordered parents-first with their coordinates.
+  // Joints: skeleton joints from the registry's joint types, then the Model's joint list in
+  // parents-first order and the coordinates in the skeleton's order.
   std::vector<Joint> joints;
+  std::vector<JointSpec> skeleton_joints;
   for (const SceneJointSpec& js : spec.joints) {
     Joint j;
     j.name = js.name;
@@ -168,42 +188,37 @@ Model compile(const SceneSpec& spec, const Registry& registry) {
     j.child = resolve_body(model.bodies, js.child, js.name, "joint child");
     j.X_parent_F = js.X_parent_F;
     j.X_child_M = js.X_child_M;
-    const JointFactory& factory =
-        registry.joint_types.get(js.type, {.object = js.name});
-    j.kinematics = factory(js);
-    j.num_coordinates = j.kinematics->get_num_coordinates();
-    if (static_cast<int>(js.coordinates.size()) != j.num_coordinates)
-      throw_bad_input("joint type '" + js.type + "' has " + std::to_string(j.num_coordinates) +
-                          " coordinates but " + std::to_string(js.coordinates.size()) + " are given",
-                      {.object = js.name});
+    const JointFactory& factory = registry.joint_types.get(js.type, {.object = js.name});
+    skeleton_joints.push_back(factory(js));
+    j.num_coordinates = static_cast<int>(skeleton_joints.back().coordinates.size());
     joints.push_back(std::move(j));
   }
   const std::vector<int> order = order_joints(joints, model.num_bodies());
   for (int jo : order) {
-    Joint& j = joints[jo];
-    const SceneJointSpec& js = spec.joints[jo];
-    j.first_coordinate = CoordinateIndex{model.num_coordinates()};
-    for (int k = 0; k < j.num_coordinates; ++k) {
-      const SceneCoordinateSpec& cs = js.coordinates[k];
-      if (cs.name.empty() || find_by_name(model.coordinates, cs.name) >= 0)
-        throw_bad_input("coordinate names must be unique and non-empty", {.object = js.name + "/" + cs.name});
-      if (!(cs.range_min <= cs.range_max))
-        throw_bad_input("coordinate range is empty", {.object = cs.name});
-      if (cs.default_value < cs.range_min || cs.default_value > cs.range_max)
-        throw_bad_input("coordinate default lies outside its range", {.object = cs.name});
-      model.coordinates.push_back(Coordinate{cs.name, JointIndex{static_cast<int32_t>(model.joints.size())},
-                                             j.kinematics->is_rotational(k), cs.default_value,
-                                             cs.range_min, cs.range_max});
-    }
-    model.bodies[j.child.v].joint = JointIndex{static_cast<int32_t>(model.joints.size())};
-    model.joints.push_back(std::move(j));
+    model.bodies[joints[jo].child.v].joint = JointIndex{static_cast<int32_t>(model.joints.size())};
+    model.joints.push_back(std::move(joints[jo]));
   }
   for (size_t b = 1; b < model.bodies.size(); ++b)
     if (!model.bodies[b].joint.valid())
       throw_bad_input("body has no joint connecting it to the skeleton", {.object = model.bodies[b].name,
                       .suggestion = "add a joint with this body as child ('weld' to fix it)"});
-  model.default_q.resize(model.num_coordinates());
-  for (int c = 0; c < model.num_coordinates(); ++c) model.default_q[c] = model.coordinates[c].default_value;
+  model.skeleton = std::make_unique<const Skeleton>(fascicle::compile(make_skeleton_spec(model, skeleton_joints)));
+  for (int c = 0; c < model.skeleton->num_coordinates(); ++c) {
+    const CoordinateInfo& info = model.skeleton->get_coordinate(c);
+    Coordinate coord;
+    coord.name = info.spec.name;
+    coord.rotational = info.spec.motion_type != MotionType::translational;
+    coord.default_value = info.spec.default_value;
+    coord.range_min = info.spec.range_min;
+    coord.range_max = info.spec.range_max;
+    const std::string& joint_name = model.skeleton->get_joints().at(info.joint).name;
+    coord.joint = JointIndex{find_by_name(model.joints, joint_name)};
+    if (!(coord.range_min <= coord.range_max) || coord.default_value < coord.range_min ||
+        coord.default_value > coord.range_max)
+      throw_bad_input("coordinate default lies outside its range (or the range is empty)", {.object = coord.name});
+    model.coordinates.push_back(coord);
+  }
+  model.default_q = model.skeleton->get_default_q();
   model.X_ground_body_default = calc_body_transforms(model, model.default_q);
 
   // Body meshes given in ground at the default pose: move them into their body frames.
@@ -218,6 +233,8 @@ Model compile(const SceneSpec& spec, const Registry& registry) {
       if (!spec.bodies[b - 1].center_of_mass) body.center_of_mass = X_body_ground * body.center_of_mass;
       if (!spec.bodies[b - 1].inertia) body.inertia = R * body.inertia * R.transpose();
     }
+    // The mass properties are now in body frames: rebuild the skeleton with them.
+    model.skeleton = std::make_unique<const Skeleton>(fascicle::compile(make_skeleton_spec(model, skeleton_joints)));
   }
 
   // Muscles: attachments, via points, actuator, then the representation (needs the rest of the Model).

@@ -24,56 +24,39 @@ Vec3 unit_axis(const SceneJointSpec& spec) {
   return spec.axis / n;
 }
 
-class WeldJoint final : public JointKinematics {
- public:
-  int get_num_coordinates() const override { return 0; }
-  bool is_rotational(int) const override { return false; }
-  Transform calc_X_F_M(const double*) const override { return Transform::Identity(); }
-};
-
-class PinJoint final : public JointKinematics {
- public:
-  explicit PinJoint(const Vec3& axis) : axis_(axis) {}
-  int get_num_coordinates() const override { return 1; }
-  bool is_rotational(int) const override { return true; }
-  Transform calc_X_F_M(const double* q) const override {
-    Transform X = Transform::Identity();
-    X.linear() = Eigen::AngleAxisd(q[0], axis_).toRotationMatrix();
-    return X;
+// The skeleton joint with the scene joint's names and frames, and its coordinates with the given
+// motion types.
+JointSpec make_joint(const SceneJointSpec& s, fascicle::JointType type, const std::vector<MotionType>& motions) {
+  if (s.coordinates.size() != motions.size())
+    throw_bad_input("joint type '" + s.type + "' has " + std::to_string(motions.size()) + " coordinates but " +
+                        std::to_string(s.coordinates.size()) + " are given",
+                    {.object = s.name});
+  JointSpec j;
+  j.name = s.name;
+  j.type = type;
+  j.parent = s.parent;
+  j.child = s.child;
+  j.X_parent_F = s.X_parent_F;
+  j.X_child_M = s.X_child_M;
+  for (size_t k = 0; k < motions.size(); ++k) {
+    const SceneCoordinateSpec& c = s.coordinates[k];
+    CoordinateSpec cs;
+    cs.name = c.name;
+    cs.motion_type = motions[k];
+    cs.default_value = c.default_value;
+    cs.range_min = c.range_min;
+    cs.range_max = c.range_max;
+    j.coordinates.push_back(cs);
   }
+  return j;
+}
 
- private:
-  Vec3 axis_;
-};
-
-class SliderJoint final : public JointKinematics {
- public:
-  explicit SliderJoint(const Vec3& axis) : axis_(axis) {}
-  int get_num_coordinates() const override { return 1; }
-  bool is_rotational(int) const override { return false; }
-  Transform calc_X_F_M(const double* q) const override {
-    Transform X = Transform::Identity();
-    X.translation() = q[0] * axis_;
-    return X;
-  }
-
- private:
-  Vec3 axis_;
-};
-
-class FreeJoint final : public JointKinematics {
- public:
-  int get_num_coordinates() const override { return 6; }
-  bool is_rotational(int k) const override { return k < 3; }
-  Transform calc_X_F_M(const double* q) const override {
-    Transform X = Transform::Identity();
-    X.linear() = (Eigen::AngleAxisd(q[0], Vec3::UnitX()) * Eigen::AngleAxisd(q[1], Vec3::UnitY()) *
-                  Eigen::AngleAxisd(q[2], Vec3::UnitZ()))
-                     .toRotationMatrix();
-    X.translation() = Vec3(q[3], q[4], q[5]);
-    return X;
-  }
-};
+// Rotates F and M by R (R·from = axis) so that the skeleton's fixed joint axis becomes `axis`.
+void align_axis(JointSpec& j, const Vec3& from, const Vec3& axis) {
+  const Mat3 R = Eigen::Quaterniond::FromTwoVectors(from, axis).toRotationMatrix();
+  j.X_parent_F.linear() = j.X_parent_F.linear() * R;
+  j.X_child_M.linear() = j.X_child_M.linear() * R;
+}
 
 class HillActuator final : public Actuator {
  public:
@@ -88,17 +71,24 @@ class HillActuator final : public Actuator {
 
 }  // namespace
 
-std::unique_ptr<const JointKinematics> make_weld_joint(const SceneJointSpec&) {
-  return std::make_unique<WeldJoint>();
+JointSpec make_weld_joint(const SceneJointSpec& s) { return make_joint(s, fascicle::JointType::weld, {}); }
+
+JointSpec make_pin_joint(const SceneJointSpec& s) {
+  JointSpec j = make_joint(s, fascicle::JointType::pin, {MotionType::rotational});
+  align_axis(j, Vec3::UnitZ(), unit_axis(s));
+  return j;
 }
-std::unique_ptr<const JointKinematics> make_pin_joint(const SceneJointSpec& spec) {
-  return std::make_unique<PinJoint>(unit_axis(spec));
+
+JointSpec make_slider_joint(const SceneJointSpec& s) {
+  JointSpec j = make_joint(s, fascicle::JointType::slider, {MotionType::translational});
+  align_axis(j, Vec3::UnitX(), unit_axis(s));
+  return j;
 }
-std::unique_ptr<const JointKinematics> make_slider_joint(const SceneJointSpec& spec) {
-  return std::make_unique<SliderJoint>(unit_axis(spec));
-}
-std::unique_ptr<const JointKinematics> make_free_joint(const SceneJointSpec&) {
-  return std::make_unique<FreeJoint>();
+
+JointSpec make_free_joint(const SceneJointSpec& s) {
+  using M = MotionType;
+  return make_joint(s, fascicle::JointType::free,
+                    {M::rotational, M::rotational, M::rotational, M::translational, M::translational, M::translational});
 }
 
 std::unique_ptr<const Actuator> make_hill_actuator(const MuscleSpec& spec) {

@@ -33,12 +33,15 @@ State make_state(const Model& model) {
   s.q = model.default_q;
   s.X_ground_body.assign(model.bodies.size(), Transform::Identity());
   s.muscles.resize(model.muscles.size());
+  s.skeleton.emplace(*model.skeleton);
   return s;
 }
 
 void calc_pose(const Model& model, State& state) {
   if (!state.q.allFinite()) throw_numerical("coordinate values are not finite");
-  state.X_ground_body = calc_body_transforms(model, state.q);
+  if (!state.skeleton) state.skeleton.emplace(*model.skeleton);
+  calc_pose(*model.skeleton, state.q, *state.skeleton);
+  state.X_ground_body = state.skeleton->get_body_transforms();
   state.muscles.resize(model.muscles.size());
   state.stage = Stage::pose;
 }

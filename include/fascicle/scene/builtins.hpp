@@ -6,12 +6,14 @@
 
 namespace fascicle {
 
-// Joint types. pin: rotation by q about `axis` (unit, in F = M); slider: translation by q along
-// `axis`; weld: no coordinates; free: 3 rotations (body-fixed x-y-z sequence) then 3 translations.
-std::unique_ptr<const JointKinematics> make_weld_joint(const SceneJointSpec& spec);
-std::unique_ptr<const JointKinematics> make_pin_joint(const SceneJointSpec& spec);
-std::unique_ptr<const JointKinematics> make_slider_joint(const SceneJointSpec& spec);
-std::unique_ptr<const JointKinematics> make_free_joint(const SceneJointSpec& spec);
+// Joint types, as skeleton joints. pin: rotation by q about `axis` (unit, in F = M); slider:
+// translation by q along `axis`; weld: no coordinates; free: 3 rotations (body-fixed x-y-z) then
+// 3 translations along F's axes. The skeleton's pin turns about z of F and its slider moves along
+// x of F, so F and M are rotated to put that axis on `axis`.
+JointSpec make_weld_joint(const SceneJointSpec& spec);
+JointSpec make_pin_joint(const SceneJointSpec& spec);
+JointSpec make_slider_joint(const SceneJointSpec& spec);
+JointSpec make_free_joint(const SceneJointSpec& spec);
 
 // "hill": the musculotendon module's static equilibrium (calc_static_equilibrium) at zero
 // lengthening speed, for the spec's model and parameters.

@@ -34,9 +34,7 @@ struct Joint {
   BodyIndex child;
   Transform X_parent_F = Transform::Identity();
   Transform X_child_M = Transform::Identity();
-  CoordinateIndex first_coordinate;  // the joint's coordinates are consecutive
   int num_coordinates = 0;
-  std::unique_ptr<const JointKinematics> kinematics;
 };
 
 struct Coordinate {
@@ -80,9 +78,10 @@ struct Muscle {
 
 struct Model {
   std::string name;
+  std::unique_ptr<const Skeleton> skeleton;  // poses the bodies (skeleton module, Simbody)
   std::vector<Body> bodies;              // [0] = ground
   std::vector<Joint> joints;             // parents before children
-  std::vector<Coordinate> coordinates;
+  std::vector<Coordinate> coordinates;   // in the skeleton's coordinate order
   std::vector<Muscle> muscles;
   VecX default_q;                        // #coordinates
   std::vector<Transform> X_ground_body_default;  // at default_q
@@ -101,13 +100,15 @@ struct Model {
 
 // Builds the Model: resolves every name to an index (bad input naming the object and suggesting
 // the nearest valid name), orders joints from ground outwards (each body must be the child of
-// exactly one joint; cycles are an error), computes mass properties of closed body meshes
+// exactly one joint; cycles are an error), compiles the skeleton (joints through the registry's
+// joint types), computes mass properties of closed body meshes
 // (density × volume, centroid, inertia, seed 000 §5.1) where not given, expresses ground-frame
 // geometry in body frames, and constructs the actuators and muscle representations through the
 // registry. Returns a complete Model or throws fascicle::Error.
 Model compile(const SceneSpec& spec, const Registry& registry);
 
 // The pose of every body for coordinates q (#coordinates): X_ground_body (#bodies, [0] identity).
+// One-off convenience; per-frame code uses calc_pose(model, state).
 std::vector<Transform> calc_body_transforms(const Model& model, const VecX& q);
 
 }  // namespace fascicle

@@ -11,6 +11,7 @@
 #include "fascicle/musculotendon/muscle.hpp"
 #include "fascicle/scene/ids.hpp"
 #include "fascicle/scene/scene_spec.hpp"
+#include "fascicle/skeleton/skeleton.hpp"
 
 #include <filesystem>
 #include <functional>
@@ -25,18 +26,10 @@ struct Model;
 struct State;
 struct MuscleFrame;
 
-// Kinematics of a joint type: the pose of the child's joint frame M in the parent's joint frame F
-// as a function of the joint's coordinates.
-class JointKinematics {
- public:
-  virtual ~JointKinematics() = default;
-  virtual int get_num_coordinates() const = 0;
-  // True when coordinate k is an angle (rad; converted from degrees when a motion file says so).
-  virtual bool is_rotational(int k) const = 0;
-  // X_F_M for the coordinate values q[0 .. get_num_coordinates()).
-  virtual Transform calc_X_F_M(const double* q) const = 0;
-};
-using JointFactory = std::function<std::unique_ptr<const JointKinematics>(const SceneJointSpec&)>;
+// A joint type turns the scene's description of a joint into a joint of the skeleton module
+// (fascicle/skeleton/skeleton.hpp), which poses the bodies (Simbody). A plug-in kind can build any
+// skeleton joint, e.g. an OpenSim-style custom joint with coordinate functions.
+using JointFactory = std::function<JointSpec(const SceneJointSpec&)>;
 
 // What a muscle looks like at a frame: given the posed bodies and the muscle's action line
 // (State stage >= action lines), fill `out.surface` (and optionally `out.fibres`, `out.volume_m3`).

@@ -9,6 +9,7 @@
 #include "fascicle/scene/model.hpp"
 
 #include <limits>
+#include <optional>
 #include <vector>
 
 namespace fascicle {
@@ -33,6 +34,7 @@ struct State {
   std::vector<Transform> X_ground_body;    // #bodies (valid from Stage::pose)
   std::vector<MuscleFrame> muscles;        // #muscles
   Stage stage = Stage::none;
+  std::optional<SkeletonState> skeleton;   // the skeleton module's per-frame state
 };
 
 // A state at the default coordinates, nothing computed.
