@@ -147,10 +147,15 @@ SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_act
   for (const MeshQuery* bone : bones) {
     if (!bone) throw_usage("null bone query", muscle_context(b.name));
     VecX depth = VecX::Zero(n);
+    VecX clearance = bone->calc_distances(rest_surface.V);
     const InsideFlags inside = bone->calc_is_inside(rest_surface.V);
-    for (Eigen::Index i = 0; i < n; ++i)
-      if (inside[i]) depth[i] = bone->calc_closest_point(rest_surface.V.row(i)).distance;
+    for (Eigen::Index i = 0; i < n; ++i) {
+      if (!inside[i]) continue;
+      depth[i] = clearance[i];
+      clearance[i] = 0.0;
+    }
     b.rest_bone_depth.push_back(std::move(depth));
+    b.rest_bone_clearance.push_back(std::move(clearance));
   }
   return b;
 }
@@ -325,6 +330,9 @@ bool SurfaceFirstSolver::update_contacts(const Points3& X, const std::vector<Tra
     const Eigen::AlignedBox3d& box = bone_boxes_[k];
     for (int i : b.free_vertices) {
       const Vec3 p = Tinv * Vec3(X.row(i).transpose());
+      const double clearance = b.rest_bone_clearance[k][i];
+      if (clearance > 0.0 && (p - b.rest.V.row(i).transpose()).squaredNorm() < clearance * clearance)
+        continue;  // moved less than its rest distance to the bone: still outside
       if (!box.contains(p)) continue;
       if (!bones_[k]->calc_is_inside(p)) continue;
       const ClosestPoint cp = bones_[k]->calc_closest_point(p);
@@ -433,6 +441,8 @@ const Points3& SurfaceFirstSolver::calc_frame(const SurfaceFrameInput& input) {
                     muscle_context(b.name, "the frame's deformation is too large; check the "
                                            "action line and attachment motions"));
   vertices_ = std::move(X);
+  skinned_ = std::move(S);
+  line_ = line;
   has_previous_ = true;
   return vertices_;
 }

@@ -46,8 +46,9 @@ struct SurfaceFirstOptions {
   int max_contact_rounds = 8;         // solve -> detect -> add/release rounds per frame
   int max_volume_iterations = 10;     // Gauss-Newton iterations on the volume constraint
   // Stop when the relative change of the volume gradient between iterations (the relative KKT
-  // residual of the constrained problem) is below this.
-  double stationarity_tolerance = 1e-6;
+  // residual of the constrained problem) is below this. The volume is exact at every iterate; this
+  // only bounds the shape error, to about this fraction of the volume-correction displacement.
+  double stationarity_tolerance = 1e-3;
   // A frame whose relative volume error exceeds this throws fascicle::Error (numerical).
   double max_volume_error = 1e-4;
 };
@@ -74,6 +75,9 @@ struct SurfaceBinding {
   double rest_volume_m3 = 0.0;
   double size_m = 0.0;              // bounding-box diagonal of the rest surface
   std::vector<VecX> rest_bone_depth;  // per bone, per vertex: depth inside the bone at rest (>= 0)
+  // per bone, per vertex: distance to the bone at rest for vertices outside it (0 inside). A vertex
+  // that has moved less than this relative to the bone cannot be inside it (exact culling).
+  std::vector<VecX> rest_bone_clearance;
 
   int num_bones() const { return static_cast<int>(rest_bone_depth.size()); }
 };
@@ -134,6 +138,9 @@ class SurfaceFirstSolver {
   const Points3& calc_frame(const SurfaceFrameInput& input);
 
   const Points3& get_vertices() const { return vertices_; }
+  // This frame's framed action line and the vertices carried rigidly by its frames ("skinned").
+  const FramedLine& get_line() const { return line_; }
+  const Points3& get_skinned_vertices() const { return skinned_; }
   const SurfaceFrameInfo& get_info() const { return info_; }
   const SurfaceBinding& get_binding() const { return binding_; }
   // Forget the warm start (previous solution and contacts).
@@ -164,6 +171,8 @@ class SurfaceFirstSolver {
   std::vector<int> factorised_contacts_;  // free indices with a contact in the current factor
   bool analysed_contacts_ = false;        // symbolic analysis of the contact factor done
   Points3 vertices_;
+  Points3 skinned_;
+  FramedLine line_;
   bool has_previous_ = false;
   SurfaceFrameInfo info_;
 };

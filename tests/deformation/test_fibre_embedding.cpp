@@ -1,0 +1,141 @@
+// Mean-value coordinates, fibres carried by the deformation, fibre length and pennation.
+#include "fascicle/deformation/fibre_embedding.hpp"
+#include "fascicle/deformation/surface_first.hpp"
+#include "fascicle/geometry/primitives.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+namespace fascicle {
+namespace {
+
+TEST(MeanValueCoordinates, LinearPrecisionAndPartitionOfUnity) {
+  const TriMesh mesh = make_ellipsoid(Vec3(0.02, 0.03, 0.05), 2);
+  for (const Vec3& x : {Vec3(0, 0, 0), Vec3(0.01, -0.01, 0.02), Vec3(0.0, 0.0, 0.0499)}) {
+    const VecX w = calc_mean_value_coordinates(mesh, x);
+    EXPECT_NEAR(w.sum(), 1.0, 1e-12);
+    EXPECT_LT((mesh.V.transpose() * w - x).norm(), 1e-12);
+    EXPECT_GE(w.minCoeff(), 0.0);  // convex surface: all coordinates are positive
+  }
+  // on a vertex: that vertex; on a triangle: its barycentric coordinates
+  const VecX wv = calc_mean_value_coordinates(mesh, mesh.V.row(5).transpose());
+  EXPECT_EQ(wv[5], 1.0);
+  const Vec3 on = (0.2 * mesh.V.row(mesh.F(3, 0)) + 0.3 * mesh.V.row(mesh.F(3, 1)) +
+                   0.5 * mesh.V.row(mesh.F(3, 2))).transpose();
+  const VecX wt = calc_mean_value_coordinates(mesh, on);
+  EXPECT_NEAR(wt[mesh.F(3, 0)], 0.2, 1e-9);
+  EXPECT_NEAR(wt[mesh.F(3, 2)], 0.5, 1e-9);
+}
+
+// 12 straight fibres parallel to the axis of the cylinder muscle of test_surface_first.cpp.
+std::vector<Points3> axial_fibres() {
+  std::vector<Points3> fibres;
+  for (int k = 0; k < 12; ++k) {
+    const double r = (k % 2 ? 0.008 : 0.015), a = 2.0 * M_PI * k / 12.0;
+    Points3 P(9, 3);
+    for (int i = 0; i < 9; ++i) P.row(i) << r * std::cos(a), r * std::sin(a), -0.085 + 0.17 * i / 8.0;
+    fibres.push_back(P);
+  }
+  return fibres;
+}
+
+struct Muscle {
+  TriMesh mesh = make_cylinder(0.02, 0.2, 32, 40);
+  std::vector<AttachmentArea> areas{{"origin", {}}, {"insertion", {}}};
+  Points3 line;
+  Muscle() {
+    for (int i = 0; i < mesh.V.rows(); ++i) {
+      if (mesh.V(i, 2) < -0.09) areas[0].vertices.push_back(i);
+      if (mesh.V(i, 2) > 0.09) areas[1].vertices.push_back(i);
+    }
+    line.resize(11, 3);
+    for (int k = 0; k < 11; ++k) line.row(k) << 0.0, 0.0, -0.1 + 0.02 * k;
+  }
+  SurfaceFrameInput bend(double angle) const {
+    Transform T = Transform::Identity();
+    T.rotate(Eigen::AngleAxisd(angle, Vec3::UnitX()));
+    SurfaceFrameInput in;
+    in.action_line = line;
+    for (int k = 6; k < 11; ++k) in.action_line.row(k) = (T * Vec3(line.row(k).transpose())).transpose();
+    in.attachment_motions = {Transform::Identity(), T};
+    return in;
+  }
+};
+
+double max_distance(const std::vector<Points3>& a, const std::vector<Points3>& b) {
+  double worst = 0.0;
+  for (std::size_t f = 0; f < a.size(); ++f) worst = std::max(worst, (a[f] - b[f]).rowwise().norm().maxCoeff());
+  return worst;
+}
+
+TEST(FibreEmbedding, RestAndRigidMotionAreExact) {
+  const Muscle m;
+  const std::vector<Points3> fibres = axial_fibres();
+  const SurfaceBinding b = bind_surface(m.mesh, m.line, m.areas, {});
+  const FibreEmbedding e = embed_fibres(b, fibres);
+  EXPECT_LE(e.weights.nonZeros(), 256 * 12 * 9);
+  SurfaceFirstSolver solver(b, {});
+  solver.calc_frame(m.bend(0.0));
+  EXPECT_LT(max_distance(calc_embedded_fibres(e, solver), fibres), 1e-12);
+  EXPECT_LT(max_distance(calc_embedded_fibres_mvc(e, m.mesh.V), fibres), 1e-12);
+
+  Transform T = Transform::Identity();
+  T.translate(Vec3(0.1, 0.2, -0.3)).rotate(Eigen::AngleAxisd(0.9, Vec3(1, 2, 3).normalized()));
+  SurfaceFrameInput in;
+  in.action_line = (T * m.line.transpose()).transpose();
+  in.attachment_motions = {T, T};
+  solver.calc_frame(in);
+  std::vector<Points3> expected;
+  for (const Points3& f : fibres) expected.push_back((T * f.transpose()).transpose());
+  EXPECT_LT(max_distance(calc_embedded_fibres(e, solver), expected), 1e-11);
+  EXPECT_LT(max_distance(calc_embedded_fibres_mvc(e, solver.get_vertices()), expected), 1e-11);
+}
+
+TEST(FibreEmbedding, TruncatedCoordinatesFollowDenseOnesUnderBending) {
+  const Muscle m;
+  const std::vector<Points3> fibres = axial_fibres();
+  const SurfaceBinding b = bind_surface(m.mesh, m.line, m.areas, {});
+  const FibreEmbedding sparse = embed_fibres(b, fibres, {.max_weights = 256});
+  const FibreEmbedding dense = embed_fibres(b, fibres, {.max_weights = 0});
+  SurfaceFirstSolver solver(b, {});
+  const SurfaceFrameInput in = m.bend(M_PI / 3.0);
+  solver.calc_frame(in);
+  const std::vector<Points3> fs = calc_embedded_fibres(sparse, solver);
+  const std::vector<Points3> fd = calc_embedded_fibres(dense, solver);
+  const std::vector<Points3> mvc = calc_embedded_fibres_mvc(dense, solver.get_vertices());
+  const std::vector<Points3> mvc_sparse = calc_embedded_fibres_mvc(sparse, solver.get_vertices());
+  // truncation error of the residual interpolation: within 0.5 mm (2.5% of the 20 mm radius)
+  EXPECT_LT(max_distance(fs, fd), 0.5e-3);
+  std::printf("60 deg bend, fibre points, max distance: line+residual 256 vs dense %.3f mm; "
+              "plain MVC 256 vs dense %.3f mm; line+residual vs plain MVC (dense) %.3f mm\n",
+              max_distance(fs, fd) * 1e3, max_distance(mvc_sparse, mvc) * 1e3,
+              max_distance(fd, mvc) * 1e3);
+  // fibre ends stay inside the muscle near their attachments, and the fibres bend with it
+  const FibreMetrics rest = calc_fibre_metrics(fibres, m.line);
+  const FibreMetrics bent = calc_fibre_metrics(fs, in.action_line);
+  EXPECT_NEAR(rest.mean_pennation_rad, 0.0, 1e-12);
+  EXPECT_NEAR(rest.mean_length_m, 0.17, 1e-12);
+  EXPECT_LT(bent.mean_pennation_rad, 0.2);  // still roughly along the bent line
+  EXPECT_GT(bent.mean_pennation_rad, 0.0);
+}
+
+TEST(FibreMetrics, PennationOfTiltedFibres) {
+  Points3 line(2, 3);
+  line << 0, 0, 0, 0, 0, 0.1;
+  std::vector<Points3> fibres;
+  for (double deg : {0.0, 15.0, 30.0}) {
+    const double a = deg * M_PI / 180.0;
+    Points3 P(5, 3);
+    for (int i = 0; i < 5; ++i) P.row(i) << 0.002 + 0.01 * i * std::sin(a), 0.0, 0.01 + 0.01 * i * std::cos(a);
+    fibres.push_back(P);
+  }
+  const FibreMetrics m = calc_fibre_metrics(fibres, line);
+  EXPECT_NEAR(m.pennation_rad[0], 0.0, 1e-12);
+  EXPECT_NEAR(m.pennation_rad[1], 15.0 * M_PI / 180.0, 1e-12);
+  EXPECT_NEAR(m.pennation_rad[2], 30.0 * M_PI / 180.0, 1e-12);
+  EXPECT_NEAR(m.length_m[2], 0.04, 1e-15);
+}
+
+}  // namespace
+}  // namespace fascicle
