@@ -16,6 +16,7 @@ void add_demo_commands(CLI::App& app, Invocation& run);  // cmd_demo.cpp
 void add_run_commands(CLI::App& app, Invocation& run);   // cmd_run.cpp
 void add_muscle_commands(CLI::App& app, Invocation& run);  // cmd_muscle.cpp
 void add_solid_commands(CLI::App& app, Invocation& run);  // cmd_solid.cpp
+void add_fibres_commands(CLI::App& app, Invocation& run);  // cmd_fibres.cpp
 
 
 }  // namespace fascicle::cli

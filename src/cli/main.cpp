@@ -28,6 +28,7 @@ int main(int argc, char** argv) {
   fascicle::cli::add_run_commands(app, run);
   fascicle::cli::add_muscle_commands(app, run);
   fascicle::cli::add_solid_commands(app, run);
+  fascicle::cli::add_fibres_commands(app, run);
 
   try {
     app.parse(argc, argv);

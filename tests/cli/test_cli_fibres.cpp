@@ -1,0 +1,83 @@
+// End-to-end tests of `fascicle fibres`.
+#include "test_support.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+namespace {
+
+struct FibresCliRun {
+  int code;
+  std::string out;
+};
+
+FibresCliRun run_fibres_cli(const std::string& args) {
+  const std::string cmd = std::string(FASCICLE_CLI_PATH) + " -q fibres " + args + " 2>&1";
+  std::string out;
+  FILE* pipe = popen(cmd.c_str(), "r");
+  std::array<char, 4096> buf{};
+  while (pipe && fgets(buf.data(), buf.size(), pipe)) out += buf.data();
+  const int status = pipe ? pclose(pipe) : -1;
+  return {WEXITSTATUS(status), out};
+}
+
+std::string ta_mesh() {
+  return fascicle::test::data_path("bolsterlee_dti/TA.stl").string();
+}
+
+}  // namespace
+
+TEST(CliFibres, TemplateMethodWritesFibresAndReport) {
+  const auto dir = fascicle::test::scratch_dir("cli_fibres_template");
+  const auto vtp = (dir / "ta.vtp").string(), json = (dir / "ta.json").string();
+  const FibresCliRun r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --template parallel "
+                                        "--method template --count 40 --resolution 9 --out " +
+                                        vtp + " --report " + json);
+  ASSERT_EQ(r.code, 0) << r.out;
+  ASSERT_TRUE(std::filesystem::exists(vtp));
+  std::ifstream in(json);
+  const nlohmann::json j = nlohmann::json::parse(in);
+  EXPECT_EQ(j["fibre_count"].get<int>(), 40);
+  EXPECT_EQ(j["method"].get<std::string>(), "template");
+  // The TA belly is about 27 cm long; its volume about 100-200 cm^3.
+  EXPECT_GT(j["mean_fibre_length_m"].get<double>(), 0.15);
+  EXPECT_LT(j["mean_fibre_length_m"].get<double>(), 0.35);
+  EXPECT_GT(j["volume_m3"].get<double>(), 50e-6);
+  EXPECT_LT(j["volume_m3"].get<double>(), 400e-6);
+  double share = 0.0;
+  for (const auto& f : j["fibres"]) share += f["volume_share"].get<double>();
+  EXPECT_NEAR(share, 1.0, 1e-9);
+}
+
+TEST(CliFibres, BadInputsGiveClearErrors) {
+  const auto dir = fascicle::test::scratch_dir("cli_fibres_bad");
+  const auto vtp = (dir / "x.vtp").string();
+  // Unknown template: usage error (2).
+  FibresCliRun r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --template spiral --out " + vtp);
+  EXPECT_EQ(r.code, 2) << r.out;
+  EXPECT_NE(r.out.find("spiral"), std::string::npos) << r.out;
+  // Missing mesh: bad input (3) naming the file.
+  r = run_fibres_cli("--mesh " + (dir / "none.stl").string() + " --out " + vtp);
+  EXPECT_EQ(r.code, 3) << r.out;
+  EXPECT_NE(r.out.find("none.stl"), std::string::npos) << r.out;
+  // Landmarks of another muscle (far from this surface): bad input (3).
+  const auto far = (dir / "far.csv").string();
+  std::ofstream(far) << "x,y,z\n1000,1000,1000\n1001,1000,1000\n";
+  r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --origin " + far + " --insertion " + far +
+                     " --out " + vtp);
+  EXPECT_EQ(r.code, 3) << r.out;
+  EXPECT_NE(r.out.find("landmark"), std::string::npos) << r.out;
+  // A non-manifold muscle is rejected with the mesh report (3).
+  r = run_fibres_cli("--mesh " +
+                     fascicle::test::data_path("negative/left_biceps_brachii.stl").string() +
+                     " --units mm --out " + vtp);
+  EXPECT_EQ(r.code, 3) << r.out;
+  EXPECT_FALSE(std::filesystem::exists(vtp));
+}
