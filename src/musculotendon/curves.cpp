@@ -19,17 +19,32 @@ CurvePoint thelen_active_force_length(const ThelenCurveParameters& p, double l) 
   return {v, -2.0 * d / p.KshapeActive * v};
 }
 
-CurvePoint thelen_passive_force_length(const ThelenCurveParameters& p, double l) {
+ThelenCurveConstants make_thelen_constants(const ThelenCurveParameters& p) {
+  return {std::exp(p.KshapePassive) - 1.0, thelen_tendon_toe_strain(p.FmaxTendonStrain),
+          thelen_tendon_linear_stiffness(p.FmaxTendonStrain)};
+}
+
+CurvePoint thelen_passive_force_length(const ThelenCurveParameters& p, const ThelenCurveConstants& c,
+                                       double l) {
   if (l <= 1.0) return {0.0, 0.0};
   const double k = p.KshapePassive, e0 = p.FmaxMuscleStrain;
-  const double ex = std::exp(k * (l - 1.0) / e0), den = std::exp(k) - 1.0;
+  const double ex = std::exp(k * (l - 1.0) / e0), den = c.passive_den;
   return {(ex - 1.0) / den, k / e0 * ex / den};
 }
 
-double thelen_passive_force_length_integral(const ThelenCurveParameters& p, double l) {
+CurvePoint thelen_passive_force_length(const ThelenCurveParameters& p, double l) {
+  return thelen_passive_force_length(p, make_thelen_constants(p), l);
+}
+
+double thelen_passive_force_length_integral(const ThelenCurveParameters& p,
+                                            const ThelenCurveConstants& c, double l) {
   if (l <= 1.0) return 0.0;
   const double k = p.KshapePassive, e0 = p.FmaxMuscleStrain;
-  return (e0 / k * std::expm1(k * (l - 1.0) / e0) - (l - 1.0)) / (std::exp(k) - 1.0);
+  return (e0 / k * std::expm1(k * (l - 1.0) / e0) - (l - 1.0)) / c.passive_den;
+}
+
+double thelen_passive_force_length_integral(const ThelenCurveParameters& p, double l) {
+  return thelen_passive_force_length_integral(p, make_thelen_constants(p), l);
 }
 
 double thelen_tendon_toe_strain(double e0) {
@@ -46,10 +61,9 @@ constexpr double kThelenToeShape = 3.0;   // kToe
 constexpr double kThelenToeForce = 0.33;  // Ftoe
 }  // namespace
 
-CurvePoint thelen_tendon_force_length(const ThelenCurveParameters& p, double lt) {
+CurvePoint thelen_tendon_force_length(const ThelenCurveConstants& k, double lt) {
   const double x = lt - 1.0;
-  const double etoe = thelen_tendon_toe_strain(p.FmaxTendonStrain);
-  const double klin = thelen_tendon_linear_stiffness(p.FmaxTendonStrain);
+  const double etoe = k.tendon_toe_strain, klin = k.tendon_linear_stiffness;
   if (x > etoe) return {klin * (x - etoe) + kThelenToeForce, klin};
   if (x > 0.0) {
     const double c = kThelenToeForce / std::expm1(kThelenToeShape);
@@ -59,11 +73,14 @@ CurvePoint thelen_tendon_force_length(const ThelenCurveParameters& p, double lt)
   return {0.0, 0.0};
 }
 
-double thelen_tendon_force_length_integral(const ThelenCurveParameters& p, double lt) {
+CurvePoint thelen_tendon_force_length(const ThelenCurveParameters& p, double lt) {
+  return thelen_tendon_force_length(make_thelen_constants(p), lt);
+}
+
+double thelen_tendon_force_length_integral(const ThelenCurveConstants& k, double lt) {
   const double x = lt - 1.0;
   if (x <= 0.0) return 0.0;
-  const double etoe = thelen_tendon_toe_strain(p.FmaxTendonStrain);
-  const double klin = thelen_tendon_linear_stiffness(p.FmaxTendonStrain);
+  const double etoe = k.tendon_toe_strain, klin = k.tendon_linear_stiffness;
   const double c = kThelenToeForce / std::expm1(kThelenToeShape);
   const auto toe = [&](double e) {
     return c * (etoe / kThelenToeShape * std::expm1(kThelenToeShape * e / etoe) - e);
@@ -71,6 +88,10 @@ double thelen_tendon_force_length_integral(const ThelenCurveParameters& p, doubl
   if (x <= etoe) return toe(x);
   const double d = x - etoe;
   return toe(etoe) + 0.5 * klin * d * d + kThelenToeForce * d;
+}
+
+double thelen_tendon_force_length_integral(const ThelenCurveParameters& p, double lt) {
+  return thelen_tendon_force_length_integral(make_thelen_constants(p), lt);
 }
 
 namespace {
@@ -129,111 +150,173 @@ CurvePoint thelen_force_velocity(const ThelenCurveParameters& p, double a, doubl
 // ============================================================================ Bézier curves
 namespace {
 constexpr double kBinom5[6] = {1, 5, 10, 10, 5, 1};
-constexpr double kBinom4[5] = {1, 4, 6, 4, 1};
 
-double bezier(const std::array<double, 6>& p, double u) {
-  const double w = 1.0 - u;
-  double upow[6], wpow[6];
-  upow[0] = wpow[0] = 1.0;
-  for (int i = 1; i < 6; ++i) {
-    upow[i] = upow[i - 1] * u;
-    wpow[i] = wpow[i - 1] * w;
+// Power-form coefficients a[k] (k = 1..5) of p(u) − p[0] for the quintic Bernstein polynomial with
+// control values p: a_k = C(5,k) Σ_{i≤k} (−1)^{k−i} C(k,i) (p_i − p_0).
+std::array<double, 6> power_form(const std::array<double, 6>& p) {
+  constexpr double kBinom[6][6] = {{1, 0, 0, 0, 0, 0},  {1, 1, 0, 0, 0, 0},   {1, 2, 1, 0, 0, 0},
+                                   {1, 3, 3, 1, 0, 0},  {1, 4, 6, 4, 1, 0},   {1, 5, 10, 10, 5, 1}};
+  std::array<double, 6> a{};
+  for (int k = 1; k <= 5; ++k) {
+    double s = 0.0;
+    for (int i = 1; i <= k; ++i) s += (((k - i) % 2) ? -1.0 : 1.0) * kBinom[k][i] * (p[i] - p[0]);
+    a[k] = kBinom5[k] * s;
   }
-  double s = 0.0;
-  for (int i = 0; i < 6; ++i) s += kBinom5[i] * upow[i] * wpow[5 - i] * p[i];
-  return s;
+  return a;
 }
 
-double bezier_du(const std::array<double, 6>& p, double u) {
-  const double w = 1.0 - u;
-  double upow[5], wpow[5];
-  upow[0] = wpow[0] = 1.0;
-  for (int i = 1; i < 5; ++i) {
-    upow[i] = upow[i - 1] * u;
-    wpow[i] = wpow[i - 1] * w;
-  }
-  double s = 0.0;
-  for (int i = 0; i < 5; ++i) s += kBinom4[i] * upow[i] * wpow[4 - i] * (p[i + 1] - p[i]);
-  return 5.0 * s;
+// Σ_{k=1..5} a[k] u^k and its derivative (Horner).
+inline double poly5(const std::array<double, 6>& a, double u) {
+  return ((((a[5] * u + a[4]) * u + a[3]) * u + a[2]) * u + a[1]) * u;
+}
+inline double poly5_du(const std::array<double, 6>& a, double u) {
+  return (((5.0 * a[5] * u + 4.0 * a[4]) * u + 3.0 * a[3]) * u + 2.0 * a[2]) * u + a[1];
 }
 
-// u ∈ [0, 1] with x(u) = x on a segment whose x(u) is non-decreasing.
-double solve_u(const SmoothSegmentedCurve::Segment& s, double x) {
-  double lo = 0.0, hi = 1.0;
-  double u = (x - s.x[0]) / (s.x[5] - s.x[0]);
-  u = std::clamp(u, 0.0, 1.0);
+// x(u) − x and dx/du of a segment in the power form about the nearer end.
+struct XResidual {
+  double f, d;
+};
+template <class Fast>
+inline XResidual x_residual(const Fast& s, double u, double x) {
+  if (u < 0.5) return {poly5(s.ax0, u) - (x - s.x0), poly5_du(s.ax0, u)};
+  const double w = 1.0 - u;
+  return {poly5(s.ax1, w) - (x - s.x5), -poly5_du(s.ax1, w)};
+}
+
+// u ∈ [lo, hi] with x(u) = x, for x(u) non-decreasing: Newton from `u`, safeguarded by
+// bisection. Stops after a Newton step below 1e-12 or when the bracket has collapsed.
+template <class Fast>
+double newton_u(const Fast& s, double x, double u, double lo, double hi) {
   for (int it = 0; it < 100; ++it) {
-    const double f = bezier(s.x, u) - x;
-    if (f == 0.0) return u;
-    if (f < 0.0) lo = u; else hi = u;
+    const XResidual r = x_residual(s, u, x);
+    if (r.f == 0.0) return u;
+    if (r.f < 0.0) lo = u; else hi = u;
     if (hi - lo <= 4.0 * std::numeric_limits<double>::epsilon()) break;
-    const double d = bezier_du(s.x, u);
-    double next = (d > 0.0) ? u - f / d : 0.5 * (lo + hi);
-    if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
-    if (std::abs(next - u) <= 1e-16) { u = next; break; }
-    u = next;
+    if (r.d > 0.0) {
+      const double step = r.f / r.d;
+      // Converged: the error after this step is of order step² · x''/x' (rounding level).
+      if (std::abs(step) <= 1e-12) return u - step;
+      u -= step;
+      if (!(u > lo && u < hi)) u = 0.5 * (lo + hi);
+    } else {
+      u = 0.5 * (lo + hi);
+    }
   }
   return u;
 }
 
-// ∫_0^u y(s) x'(s) ds, exact for the degree-9 polynomial integrand (5-point Gauss-Legendre).
-double segment_integral(const SmoothSegmentedCurve::Segment& s, double u) {
-  static constexpr double kNodes[5] = {-0.9061798459386640, -0.5384693101056831, 0.0,
-                                       0.5384693101056831, 0.9061798459386640};
-  static constexpr double kWeights[5] = {0.2369268850561891, 0.4786286704993665,
-                                         0.5688888888888889, 0.4786286704993665,
-                                         0.2369268850561891};
-  double sum = 0.0;
-  for (int i = 0; i < 5; ++i) {
-    const double t = 0.5 * u * (kNodes[i] + 1.0);
-    sum += kWeights[i] * bezier(s.y, t) * bezier_du(s.x, t);
+// Power-form coefficients of ∫_0^t y(τ) x'(τ) dτ for y = y0 + Σ ay[k] τ^k, x = Σ ax[k] τ^k.
+std::array<double, 11> integral_form(double y0, const std::array<double, 6>& ax,
+                                     const std::array<double, 6>& ay) {
+  std::array<double, 6> yc = ay;
+  yc[0] = y0;
+  std::array<double, 11> ai{};
+  for (int k = 0; k <= 5; ++k) {
+    for (int j = 0; j <= 4; ++j) ai[k + j + 1] += yc[k] * (j + 1) * ax[j + 1] / (k + j + 1);
   }
-  return 0.5 * u * sum;
+  return ai;
+}
+
+inline double poly10(const std::array<double, 11>& a, double t) {
+  double v = 0.0;
+  for (int k = 10; k >= 1; --k) v = (v + a[k]) * t;
+  return v;
 }
 }  // namespace
 
 SmoothSegmentedCurve::SmoothSegmentedCurve(std::vector<Segment> segments, double dydx_left,
                                            double dydx_right)
     : segments_(std::move(segments)), dydx_left_(dydx_left), dydx_right_(dydx_right) {
+  constexpr int N = kTableIntervals;
   double acc = 0.0;
+  fast_.reserve(segments_.size());
   for (const Segment& s : segments_) {
+    Fast f;
+    f.x0 = s.x[0];
+    f.x5 = s.x[5];
+    f.y0 = s.y[0];
+    f.y5 = s.y[5];
+    const auto reversed = [](const std::array<double, 6>& p) {
+      return std::array<double, 6>{p[5], p[4], p[3], p[2], p[1], p[0]};
+    };
+    f.ax0 = power_form(s.x);
+    f.ay0 = power_form(s.y);
+    f.ax1 = power_form(reversed(s.x));
+    f.ay1 = power_form(reversed(s.y));
+    f.ai0 = integral_form(f.y0, f.ax0, f.ay0);
+    f.ai1 = integral_form(f.y5, f.ax1, f.ay1);  // ∫_0^w y dx/dw = −∫_{1−w}^1 y x' du
+    f.total = poly10(f.ai0, 1.0);
+    f.dx = (f.x5 - f.x0) / N;
+    f.inv_dx = (f.dx > 0.0) ? 1.0 / f.dx : 0.0;
+    for (int j = 0; j <= N; ++j) {
+      const double xj = (j == N) ? f.x5 : f.x0 + j * f.dx;
+      const double guess = (f.x5 > f.x0) ? (xj - f.x0) / (f.x5 - f.x0) : 0.0;
+      const double u = (j == 0) ? 0.0 : (j == N) ? 1.0 : newton_u(f, xj, guess, 0.0, 1.0);
+      const double d = x_residual(f, u, xj).d;
+      f.table_u[j] = u;
+      f.table_dudx[j] = (d > 0.0) ? 1.0 / d : 0.0;  // 0: the Hermite guess falls back to linear-ish
+    }
     integral_at_start_.push_back(acc);
-    acc += segment_integral(s, 1.0);
+    acc += f.total;
+    fast_.push_back(f);
   }
   integral_at_start_.push_back(acc);
 }
 
-CurvePoint SmoothSegmentedCurve::calc(double x) const {
-  const Segment& first = segments_.front();
-  const Segment& last = segments_.back();
-  if (x < first.x[0]) return {first.y[0] + dydx_left_ * (x - first.x[0]), dydx_left_};
-  if (x > last.x[5]) return {last.y[5] + dydx_right_ * (x - last.x[5]), dydx_right_};
-  for (const Segment& s : segments_) {
-    if (x <= s.x[5]) {
-      const double u = solve_u(s, x);
-      return {bezier(s.y, u), bezier_du(s.y, u) / bezier_du(s.x, u)};
-    }
+double SmoothSegmentedCurve::solve_u(const Fast& f, double x) const {
+  constexpr int N = kTableIntervals;
+  const double t = std::clamp((x - f.x0) * f.inv_dx, 0.0, static_cast<double>(N));
+  const int j = std::min(static_cast<int>(t), N - 1);
+  const double s = t - j;
+  const double u0 = f.table_u[j], u1 = f.table_u[j + 1];
+  const double m0 = f.table_dudx[j] * f.dx, m1 = f.table_dudx[j + 1] * f.dx;
+  // Cubic Hermite guess for u(x) on the table interval.
+  const double w = 1.0 - s;
+  double u = (1.0 + 2.0 * s) * w * w * u0 + s * w * w * m0 + s * s * (3.0 - 2.0 * s) * u1 -
+             s * s * w * m1;
+  // Bracket: the table interval, widened by a hair for the rounding of its end points.
+  const double lo = std::max(0.0, u0 - 1e-12), hi = std::min(1.0, u1 + 1e-12);
+  if (!(u > lo && u < hi)) u = std::clamp(u, lo, hi);
+  return newton_u(f, x, u, lo, hi);
+}
+
+int SmoothSegmentedCurve::find_segment(double x) const {
+  if (x < fast_.front().x0) return -1;
+  const int n = static_cast<int>(fast_.size());
+  for (int i = 0; i < n; ++i) {
+    if (x <= fast_[i].x5) return i;
   }
-  return {last.y[5], dydx_right_};
+  return n;
+}
+
+CurvePoint SmoothSegmentedCurve::calc(double x) const {
+  const int i = find_segment(x);
+  if (i < 0) return {fast_.front().y0 + dydx_left_ * (x - fast_.front().x0), dydx_left_};
+  if (i >= static_cast<int>(fast_.size())) {
+    return {fast_.back().y5 + dydx_right_ * (x - fast_.back().x5), dydx_right_};
+  }
+  const Fast& f = fast_[i];
+  const double u = solve_u(f, x);
+  if (u < 0.5) return {f.y0 + poly5(f.ay0, u), poly5_du(f.ay0, u) / poly5_du(f.ax0, u)};
+  const double w = 1.0 - u;
+  return {f.y5 + poly5(f.ay1, w), poly5_du(f.ay1, w) / poly5_du(f.ax1, w)};
 }
 
 double SmoothSegmentedCurve::calc_integral(double x) const {
-  const Segment& first = segments_.front();
-  const Segment& last = segments_.back();
-  if (x < first.x[0]) {
-    const double d = x - first.x[0];
-    return first.y[0] * d + 0.5 * dydx_left_ * d * d;
+  const int i = find_segment(x);
+  if (i < 0) {
+    const double d = x - fast_.front().x0;
+    return fast_.front().y0 * d + 0.5 * dydx_left_ * d * d;
   }
-  if (x > last.x[5]) {
-    const double d = x - last.x[5];
-    return integral_at_start_.back() + last.y[5] * d + 0.5 * dydx_right_ * d * d;
+  if (i >= static_cast<int>(fast_.size())) {
+    const double d = x - fast_.back().x5;
+    return integral_at_start_.back() + fast_.back().y5 * d + 0.5 * dydx_right_ * d * d;
   }
-  for (size_t i = 0; i < segments_.size(); ++i) {
-    if (x <= segments_[i].x[5]) {
-      return integral_at_start_[i] + segment_integral(segments_[i], solve_u(segments_[i], x));
-    }
-  }
-  return integral_at_start_.back();
+  const Fast& f = fast_[i];
+  const double u = solve_u(f, x);
+  const double within = (u < 0.5) ? poly10(f.ai0, u) : f.total + poly10(f.ai1, 1.0 - u);
+  return integral_at_start_[i] + within;
 }
 
 double SmoothSegmentedCurve::calc_inverse(double y) const {
@@ -377,6 +460,12 @@ double degroote_kT(const DeGrooteCurveParameters& p) {
 }
 }  // namespace
 
+DeGrooteCurveConstants make_degroote_constants(const DeGrooteCurveParameters& p) {
+  const double e0 = p.passive_fiber_strain_at_one_norm_force;
+  const double offset = std::exp(kDeGrooteKPE * (kDeGrooteMinFiber - 1.0) / e0);
+  return {offset, std::exp(kDeGrooteKPE) - offset, degroote_kT(p)};
+}
+
 CurvePoint degroote_active_force_length(const DeGrooteCurveParameters& p, double l) {
   const double s = 1.0 / p.active_force_width_scale;
   const double x = 1.0 + (l - 1.0) * s;  // width scaling about l = 1
@@ -392,34 +481,54 @@ CurvePoint degroote_active_force_length(const DeGrooteCurveParameters& p, double
   return out;
 }
 
-CurvePoint degroote_passive_force_length(const DeGrooteCurveParameters& p, double l) {
+CurvePoint degroote_passive_force_length(const DeGrooteCurveParameters& p,
+                                         const DeGrooteCurveConstants& k, double l) {
   const double e0 = p.passive_fiber_strain_at_one_norm_force;
-  const double offset = std::exp(kDeGrooteKPE * (kDeGrooteMinFiber - 1.0) / e0);
-  const double den = std::exp(kDeGrooteKPE) - offset;
+  const double offset = k.passive_offset, den = k.passive_den;
   const double ex = std::exp(kDeGrooteKPE * (l - 1.0) / e0);
   return {(ex - offset) / den, kDeGrooteKPE / e0 * ex / den};
 }
 
-double degroote_passive_force_length_integral(const DeGrooteCurveParameters& p, double l) {
+CurvePoint degroote_passive_force_length(const DeGrooteCurveParameters& p, double l) {
+  return degroote_passive_force_length(p, make_degroote_constants(p), l);
+}
+
+double degroote_passive_force_length_integral(const DeGrooteCurveParameters& p,
+                                              const DeGrooteCurveConstants& k, double l) {
   const double e0 = p.passive_fiber_strain_at_one_norm_force;
-  const double offset = std::exp(kDeGrooteKPE * (kDeGrooteMinFiber - 1.0) / e0);
-  const double den = std::exp(kDeGrooteKPE) - offset;
+  const double offset = k.passive_offset, den = k.passive_den;
   const auto prim = [&](double x) {
     return e0 / kDeGrooteKPE * std::exp(kDeGrooteKPE * (x - 1.0) / e0) - offset * x;
   };
   return (prim(l) - prim(kDeGrooteMinFiber)) / den;
 }
 
-CurvePoint degroote_tendon_force_length(const DeGrooteCurveParameters& p, double lt) {
-  const double kT = degroote_kT(p);
+double degroote_passive_force_length_integral(const DeGrooteCurveParameters& p, double l) {
+  return degroote_passive_force_length_integral(p, make_degroote_constants(p), l);
+}
+
+CurvePoint degroote_tendon_force_length(const DeGrooteCurveConstants& k, double lt) {
+  const double kT = k.tendon_kT;
   const double e = kC1 * std::exp(kT * (lt - kC2));
   return {e - kC3, kT * e};
 }
 
-double degroote_tendon_force_length_integral(const DeGrooteCurveParameters& p, double lt) {
-  const double kT = degroote_kT(p);
+CurvePoint degroote_tendon_force_length(const DeGrooteCurveParameters& p, double lt) {
+  return degroote_tendon_force_length(make_degroote_constants(p), lt);
+}
+
+double degroote_tendon_force_length_integral(const DeGrooteCurveConstants& k, double lt) {
+  const double kT = k.tendon_kT;
   const auto prim = [&](double x) { return kC1 / kT * std::exp(kT * (x - kC2)) - kC3 * x; };
   return prim(lt) - prim(1.0);
+}
+
+double degroote_tendon_force_length_integral(const DeGrooteCurveParameters& p, double lt) {
+  return degroote_tendon_force_length_integral(make_degroote_constants(p), lt);
+}
+
+double degroote_norm_tendon_length(const DeGrooteCurveConstants& k, double f) {
+  return kC2 + std::log((f + kC3) / kC1) / k.tendon_kT;
 }
 
 double degroote_norm_tendon_length(const DeGrooteCurveParameters& p, double f) {

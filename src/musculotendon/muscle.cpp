@@ -34,6 +34,8 @@ Musculotendon compile_musculotendon(const MuscleParameters& params) {
   m.max_pennation_rad = kMaxPennation;
   const double pennated_min = m.parallelogram_height_m / std::sin(kMaxPennation);
   m.minimum_activation = params.minimum_activation;
+  m.thelen_constants = make_thelen_constants(params.thelen);
+  m.degroote_constants = make_degroote_constants(params.degroote);
   switch (params.model) {
     case MuscleModel::thelen2003:
       m.min_fiber_length_m = std::max(pennated_min, 0.01 * l0);
@@ -86,18 +88,20 @@ CurvePoint calc_active_force_length(const Musculotendon& m, double l) {
 
 CurvePoint calc_passive_force_length(const Musculotendon& m, double l) {
   switch (m.params.model) {
-    case MuscleModel::thelen2003: return thelen_passive_force_length(m.params.thelen, l);
+    case MuscleModel::thelen2003:
+      return thelen_passive_force_length(m.params.thelen, m.thelen_constants, l);
     case MuscleModel::millard2012: return m.millard.passive_force_length.calc(l);
-    case MuscleModel::degroote2016: return degroote_passive_force_length(m.params.degroote, l);
+    case MuscleModel::degroote2016:
+      return degroote_passive_force_length(m.params.degroote, m.degroote_constants, l);
   }
   return {};
 }
 
 CurvePoint calc_tendon_force_length(const Musculotendon& m, double lt) {
   switch (m.params.model) {
-    case MuscleModel::thelen2003: return thelen_tendon_force_length(m.params.thelen, lt);
+    case MuscleModel::thelen2003: return thelen_tendon_force_length(m.thelen_constants, lt);
     case MuscleModel::millard2012: return m.millard.tendon_force_length.calc(lt);
-    case MuscleModel::degroote2016: return degroote_tendon_force_length(m.params.degroote, lt);
+    case MuscleModel::degroote2016: return degroote_tendon_force_length(m.degroote_constants, lt);
   }
   return {};
 }
@@ -119,10 +123,12 @@ double calc_passive_energy_J(const Musculotendon& m, double lM) {
   const double l = lM / m.params.optimal_fiber_length_m;
   double e = 0.0;
   switch (m.params.model) {
-    case MuscleModel::thelen2003: e = thelen_passive_force_length_integral(m.params.thelen, l); break;
+    case MuscleModel::thelen2003:
+      e = thelen_passive_force_length_integral(m.params.thelen, m.thelen_constants, l);
+      break;
     case MuscleModel::millard2012: e = m.millard.passive_force_length.calc_integral(l); break;
     case MuscleModel::degroote2016:
-      e = degroote_passive_force_length_integral(m.params.degroote, l);
+      e = degroote_passive_force_length_integral(m.params.degroote, m.degroote_constants, l);
       break;
   }
   return e * m.params.max_isometric_force_N * m.params.optimal_fiber_length_m;
@@ -132,10 +138,10 @@ double calc_tendon_energy_J(const Musculotendon& m, double lT) {
   const double t = lT / m.params.tendon_slack_length_m;
   double e = 0.0;
   switch (m.params.model) {
-    case MuscleModel::thelen2003: e = thelen_tendon_force_length_integral(m.params.thelen, t); break;
+    case MuscleModel::thelen2003: e = thelen_tendon_force_length_integral(m.thelen_constants, t); break;
     case MuscleModel::millard2012: e = m.millard.tendon_force_length.calc_integral(t); break;
     case MuscleModel::degroote2016:
-      e = degroote_tendon_force_length_integral(m.params.degroote, t);
+      e = degroote_tendon_force_length_integral(m.degroote_constants, t);
       break;
   }
   return e * m.params.max_isometric_force_N * m.params.tendon_slack_length_m;
@@ -144,16 +150,15 @@ double calc_tendon_energy_J(const Musculotendon& m, double lT) {
 double calc_tendon_length_for_force(const Musculotendon& m, double f) {
   const double lTs = m.params.tendon_slack_length_m;
   if (m.params.model == MuscleModel::degroote2016) {
-    return lTs * degroote_norm_tendon_length(m.params.degroote, f);
+    return lTs * degroote_norm_tendon_length(m.degroote_constants, f);
   }
   if (f <= 0.0) return lTs;
   if (m.params.model == MuscleModel::millard2012) {
     return lTs * m.millard.tendon_force_length.calc_inverse(f);
   }
   // Thelen: invert the toe exponential or the linear part in closed form.
-  const auto& p = m.params.thelen;
-  const double etoe = thelen_tendon_toe_strain(p.FmaxTendonStrain);
-  const double klin = thelen_tendon_linear_stiffness(p.FmaxTendonStrain);
+  const double etoe = m.thelen_constants.tendon_toe_strain;
+  const double klin = m.thelen_constants.tendon_linear_stiffness;
   if (f >= 0.33) return lTs * (1.0 + etoe + (f - 0.33) / klin);
   const double c = 0.33 / std::expm1(3.0);
   return lTs * (1.0 + etoe / 3.0 * std::log1p(f / c));
@@ -180,10 +185,11 @@ double calc_norm_fiber_velocity(const Musculotendon& m, double a, double l, doub
     return CurvePoint{a * fal * fv.value + fpe + beta * v - force, a * fal * fv.derivative + beta};
   };
   double lo = -1.0, hi = 1.0;
-  while (g(lo).value > 0.0 && lo > -5.0) lo *= 2.0;
-  while (g(hi).value < 0.0 && hi < 5.0) hi *= 2.0;
-  if (g(lo).value > 0.0) return lo;
-  if (g(hi).value < 0.0) return hi;
+  double g_lo = g(lo).value, g_hi = g(hi).value;
+  while (g_lo > 0.0 && lo > -5.0) g_lo = g(lo *= 2.0).value;
+  while (g_hi < 0.0 && hi < 5.0) g_hi = g(hi *= 2.0).value;
+  if (g_lo > 0.0) return lo;
+  if (g_hi < 0.0) return hi;
   double v = 0.0;
   for (int it = 0; it < 100; ++it) {
     const CurvePoint r = g(v);
@@ -207,9 +213,14 @@ Geometry fiber_geometry(const Musculotendon& m, double lM, double lMT) {
   return {lM, c, s, lMT - lM * c};
 }
 
-// Fills the outputs for a fully known kinematic state. tendon_force_N < 0 means "from the curve".
+// Curve values already computed at the state's fibre and tendon lengths (reused, not recomputed).
+struct KnownCurves {
+  double fal, fpe, ft;
+};
+
+// Fills the outputs for a fully known kinematic state.
 void fill_outputs(const Musculotendon& m, double a, const Geometry& g, double vM, double lMT,
-                  double vMT, bool rigid, MuscleOutputs& o) {
+                  double vMT, bool rigid, MuscleOutputs& o, const KnownCurves* known = nullptr) {
   const auto& p = m.params;
   const double F0 = p.max_isometric_force_N, l0 = p.optimal_fiber_length_m;
   o.activation = a;
@@ -223,8 +234,10 @@ void fill_outputs(const Musculotendon& m, double a, const Geometry& g, double vM
   o.tendon_length_m = g.lT;
   o.tendon_strain = g.lT / p.tendon_slack_length_m - 1.0;
   o.tendon_velocity_m_per_s = vMT - vM / g.cos_phi;
-  o.active_force_length_multiplier = calc_active_force_length(m, o.norm_fiber_length).value;
-  o.passive_force_multiplier = calc_passive_force_length(m, o.norm_fiber_length).value;
+  o.active_force_length_multiplier =
+      known ? known->fal : calc_active_force_length(m, o.norm_fiber_length).value;
+  o.passive_force_multiplier =
+      known ? known->fpe : calc_passive_force_length(m, o.norm_fiber_length).value;
   o.force_velocity_multiplier = calc_force_velocity(m, a, o.norm_fiber_velocity).value;
   o.active_fiber_force_N = F0 * a * o.active_force_length_multiplier * o.force_velocity_multiplier;
   o.passive_fiber_force_N = F0 * o.passive_force_multiplier;
@@ -235,7 +248,8 @@ void fill_outputs(const Musculotendon& m, double a, const Geometry& g, double vM
     o.tendon_force_N = o.fiber_force_along_tendon_N;
     o.tendon_velocity_m_per_s = 0.0;
   } else {
-    o.tendon_force_N = F0 * calc_tendon_force_length(m, g.lT / p.tendon_slack_length_m).value;
+    o.tendon_force_N =
+        F0 * (known ? known->ft : calc_tendon_force_length(m, g.lT / p.tendon_slack_length_m).value);
   }
   o.norm_tendon_force = o.tendon_force_N / F0;
   o.fiber_active_power_W = -o.active_fiber_force_N * vM;
@@ -291,7 +305,9 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
 
   // Normalised force error r = FmAT/F0 − FT/F0 and dr/dlM at fixed normalised fibre velocity vN.
   struct Eval {
-    double r, dr, dFmAT_dlM, dFt_dlT, cos_phi, lT;
+    double r, dr, dFmAT_dlM, dFt_dlT;
+    Geometry g;
+    KnownCurves curves;
   };
   const auto evaluate = [&](double lM, double vN) {
     const Geometry g = fiber_geometry(m, lM, lMT);
@@ -305,8 +321,8 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
     const double dcos = (g.cos_phi > 0.0) ? h * h / (lM * lM * lM * g.cos_phi) : 0.0;
     const double dFmAT = dfm * g.cos_phi + fm * dcos;
     const double dFt_dlT = ft.derivative / lTs;
-    return Eval{fm * g.cos_phi - ft.value, dFmAT + dFt_dlT / g.cos_phi, dFmAT, dFt_dlT, g.cos_phi,
-                g.lT};
+    return Eval{fm * g.cos_phi - ft.value, dFmAT + dFt_dlT / g.cos_phi, dFmAT, dFt_dlT, g,
+                {fal.value, fpe.value, ft.value}};
   };
 
   // Bracket: [minimum fibre length, fibre length at which the tendon is exactly slack].
@@ -321,64 +337,76 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
   }
   const double lMAT_slack = lMT - lTs;
   const double hi0 = std::sqrt(lMAT_slack * lMAT_slack + h * h);
+  // OpenSim's starting point: tendon at 1.01 lTs.
+  const double lMAT_start = lMT - 1.01 * lTs;
+  const double start = std::sqrt(std::max(0.0, lMAT_start) * std::max(0.0, lMAT_start) + h * h);
 
+  // Each pass solves r(lM; vN) = 0 at a fixed fibre velocity and ends with `last` evaluated at
+  // the returned fibre length (reused for the outputs). The slack end is evaluated first (a
+  // non-positive error there means a slack tendon); the lower end only when Newton heads for it.
   double vN = 0.0, lM = std::numeric_limits<double>::quiet_NaN();
   double vN_solved = 0.0;  // the velocity the final fibre length was solved with
   int total_iterations = 0;
+  Eval last{};
+  bool at_lower = false;
   for (int outer = 0; outer < 60; ++outer) {
     vN_solved = vN;
+    at_lower = false;
     double lo = lo0, hi = hi0;
-    const Eval elo = evaluate(lo, vN);
-    if (elo.r >= 0.0) {  // fibre force beats the tendon even at the lower bound
-      lM = lo;
-      o.fiber_at_lower_bound = true;
-      break;
-    }
-    const Eval ehi = evaluate(hi, vN);
-    if (ehi.r <= 0.0) {
+    bool lo_checked = false;
+    last = evaluate(hi, vN);
+    if (last.r <= 0.0) {
       lM = hi;
     } else {
-      // OpenSim's starting point: tendon at 1.01 lTs.
-      const double lMAT0 = lMT - 1.01 * lTs;
-      double x = std::sqrt(std::max(0.0, lMAT0) * std::max(0.0, lMAT0) + h * h);
+      double x = start;  // every pass from OpenSim's start (keeps the previous passes' results)
       if (!(x > lo && x < hi)) x = 0.5 * (lo + hi);
       bool converged = false;
       for (int it = 0; it < 200; ++it, ++total_iterations) {
-        const Eval e = evaluate(x, vN);
-        if (!std::isfinite(e.r)) fail_numerical(m, "non-finite force error in equilibrium");
-        if (std::abs(e.r) <= 1e-13) { converged = true; break; }
-        if (e.r < 0.0) lo = x; else hi = x;
+        last = evaluate(x, vN);
+        if (!std::isfinite(last.r)) fail_numerical(m, "non-finite force error in equilibrium");
+        if (std::abs(last.r) <= 1e-13) { converged = true; break; }
+        if (last.r < 0.0) { lo = x; lo_checked = true; } else { hi = x; }
         if (hi - lo <= 1e-15 * hi) { converged = true; break; }
-        double next = (e.dr > 0.0 && std::isfinite(e.dr)) ? x - e.r / e.dr : 0.5 * (lo + hi);
+        double next = (last.dr > 0.0 && std::isfinite(last.dr)) ? x - last.r / last.dr : -1.0;
+        if (!(next > lo && next < hi) && !lo_checked) {
+          // Newton (or bisection) needs the lower end: is the fibre stronger than the tendon
+          // even at the minimum fibre length?
+          lo_checked = true;
+          const Eval elo = evaluate(lo0, vN);
+          if (elo.r >= 0.0) {
+            last = elo;
+            at_lower = true;
+            converged = true;
+            break;
+          }
+        }
         if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
         x = next;
       }
       if (!converged) fail_numerical(m, "static equilibrium did not converge in 200 iterations");
-      lM = x;
+      lM = at_lower ? lo0 : x;
     }
-    if (!moving) break;
-    // Velocity estimate for the next pass.
-    const Eval e = evaluate(lM, vN);
+    if (!moving || at_lower) break;
+    // Velocity estimate for the next pass (from the evaluation at the solved length).
+    const Eval& e = last;
     double vT = 0.0;
     if (p.model != MuscleModel::degroote2016) {
-      const double kM = e.dFmAT_dlM * e.cos_phi * F0;  // along-tendon fibre stiffness
+      const double kM = e.dFmAT_dlM * e.g.cos_phi * F0;  // along-tendon fibre stiffness
       const double kT = e.dFt_dlT * F0;
-      vT = (std::abs(kM + kT) > 1e-12 && e.lT > lTs) ? kM / (kM + kT) * vMT : vMT;
+      vT = (std::abs(kM + kT) > 1e-12 && e.g.lT > lTs) ? kM / (kM + kT) * vMT : vMT;
     }
-    const double vN_new = (vMT - vT) * e.cos_phi / vscale;
+    const double vN_new = (vMT - vT) * e.g.cos_phi / vscale;
     const bool done = std::abs(vN_new - vN) < 1e-13;
     vN = vN_new;
     if (done) break;
   }
   if (!std::isfinite(lM)) fail_numerical(m, "static equilibrium produced a non-finite fibre length");
-  const Geometry g = fiber_geometry(m, lM, lMT);
   // OpenSim's stiffness-sharing heuristic is discontinuous where the tendon goes slack, so the
   // fixed point may not settle; the outputs always use the velocity the length was solved with.
   double vM = vN_solved * vscale;
-  if (o.fiber_at_lower_bound && vM < 0.0) vM = 0.0;
-  const bool clamped = o.fiber_at_lower_bound;
-  fill_outputs(m, a, g, vM, lMT, vMT, false, o);
-  o.fiber_at_lower_bound = clamped;
+  if (at_lower && vM < 0.0) vM = 0.0;
+  fill_outputs(m, a, last.g, vM, lMT, vMT, false, o, &last.curves);
+  o.fiber_at_lower_bound = at_lower;
   o.iterations = total_iterations;
   return o;
 }
@@ -412,7 +440,7 @@ MuscleStateRate calc_state_rate(const Musculotendon& m, const MuscleState& s, do
   const double vscale = l0 * p.max_contraction_velocity;
   const double h = m.parallelogram_height_m;
   if (p.model == MuscleModel::degroote2016) {
-    const double lT = lTs * degroote_norm_tendon_length(p.degroote, s.norm_tendon_force);
+    const double lT = lTs * degroote_norm_tendon_length(m.degroote_constants, s.norm_tendon_force);
     const double lMAT = lMT - lT;
     double lM = std::sqrt(std::max(0.0, lMAT) * std::max(0.0, lMAT) + h * h);
     const bool clamped = lM < m.min_fiber_length_m;
@@ -425,7 +453,7 @@ MuscleStateRate calc_state_rate(const Musculotendon& m, const MuscleState& s, do
     fill_outputs(m, a, g, vM, lMT, vMT, false, o);
     o.fiber_at_lower_bound = clamped;
     const double vT = vMT - vM / g.cos_phi;
-    rate.norm_tendon_force = degroote_tendon_force_length(p.degroote, lT / lTs).derivative * vT / lTs;
+    rate.norm_tendon_force = degroote_tendon_force_length(m.degroote_constants, lT / lTs).derivative * vT / lTs;
     if (!std::isfinite(rate.norm_tendon_force)) fail_numerical(m, "non-finite tendon-force rate");
   } else {
     const bool clamped = s.fiber_length_m <= m.min_fiber_length_m;

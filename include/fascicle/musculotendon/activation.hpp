@@ -7,7 +7,8 @@ struct ActivationParameters {
   double activation_time_constant_s = 0.015;    // τa
   double deactivation_time_constant_s = 0.050;  // τd
   double minimum_activation = 0.0;              // a_min (OpenSim clamps a to [a_min, 1])
-  double smoothing = 10.0;                      // b of the tanh switch (DeGroote form only)
+  double smoothing = 0.1;                       // b of the tanh switch (DeGroote form only;
+                                                // OpenSim's default 0.1)
 };
 
 // OpenSim MuscleFirstOrderActivationDynamicModel (Thelen 2003 / Millard 2012):

@@ -40,22 +40,41 @@ double thelen_norm_fiber_velocity(const ThelenCurveParameters& p, double activat
 CurvePoint thelen_force_velocity(const ThelenCurveParameters& p, double activation,
                                  double norm_fiber_velocity);
 
+// Parameter-only constants of the Thelen curves, computed once per muscle (the functions above
+// recompute them; the overloads below take them and give bit-identical results, faster).
+struct ThelenCurveConstants {
+  double passive_den = 0.0;           // exp(KshapePassive) − 1
+  double tendon_toe_strain = 0.0;     // thelen_tendon_toe_strain(FmaxTendonStrain)
+  double tendon_linear_stiffness = 0.0;
+};
+ThelenCurveConstants make_thelen_constants(const ThelenCurveParameters& p);
+CurvePoint thelen_passive_force_length(const ThelenCurveParameters& p, const ThelenCurveConstants& k,
+                                       double norm_fiber_length);
+double thelen_passive_force_length_integral(const ThelenCurveParameters& p,
+                                            const ThelenCurveConstants& k, double norm_fiber_length);
+CurvePoint thelen_tendon_force_length(const ThelenCurveConstants& k, double norm_tendon_length);
+double thelen_tendon_force_length_integral(const ThelenCurveConstants& k, double norm_tendon_length);
+
 // ---------------------------------------------------------------- Millard 2012 (quintic Bézier)
 // A C²-continuous curve of quintic Bézier segments, extrapolated linearly outside (OpenSim's
 // SmoothSegmentedFunction). Built once; evaluation solves x(u) = x for the Bézier parameter u.
+// Fast path (built by the constructor): each segment keeps x(u), y(u) and ∫y dx in power form
+// and a table of u at equally spaced x with du/dx, so a cubic-Hermite guess for u is within ~1e-7
+// and two bracketed Newton steps reach machine precision.
 class SmoothSegmentedCurve {
  public:
   struct Segment {
     std::array<double, 6> x{};  // control-point abscissae (increasing)
     std::array<double, 6> y{};  // control-point ordinates
   };
+  static constexpr int kTableIntervals = 16;  // per segment, uniform in x
   SmoothSegmentedCurve() = default;
   // dydx_left/right: slopes of the linear extrapolations (OpenSim's dydx0 / dydx1).
   SmoothSegmentedCurve(std::vector<Segment> segments, double dydx_left, double dydx_right);
 
   CurvePoint calc(double x) const;
   double calc_value(double x) const { return calc(x).value; }
-  // ∫_{x_begin}^{x} y dx (exact: 5-point Gauss-Legendre on the degree-9 integrand in u).
+  // ∫_{x_begin}^{x} y dx (exact: the degree-9 polynomial y(u)·x'(u) integrated in closed form).
   double calc_integral(double x) const;
   // x such that y(x) = y, for curves that are strictly increasing (bisection-safeguarded Newton).
   double calc_inverse(double y) const;
@@ -65,7 +84,21 @@ class SmoothSegmentedCurve {
   bool empty() const { return segments_.empty(); }
 
  private:
+  // One segment in power form about both ends (each used on its half, for accuracy where the
+  // curve flattens): x(u) = x0 + Σ_{k≥1} ax0[k] u^k = x5 + Σ ax1[k] w^k with w = 1 − u, the same
+  // for y; ∫_0^u y x' du = Σ ai0[k] u^k = total + Σ ai1[k] w^k; table_*[j] = (u, du/dx) at
+  // x0 + j (x5 − x0)/kTableIntervals.
+  struct Fast {
+    double x0 = 0, x5 = 0, y0 = 0, y5 = 0, inv_dx = 0, dx = 0, total = 0;
+    std::array<double, 6> ax0{}, ay0{}, ax1{}, ay1{};
+    std::array<double, 11> ai0{}, ai1{};
+    std::array<double, kTableIntervals + 1> table_u{}, table_dudx{};
+  };
+  double solve_u(const Fast& f, double x) const;
+  int find_segment(double x) const;  // -1 left of the curve, size() right of it
+
   std::vector<Segment> segments_;
+  std::vector<Fast> fast_;
   std::vector<double> integral_at_start_;  // ∫ from x_begin to each segment's start
   double dydx_left_ = 0.0, dydx_right_ = 0.0;
 };
@@ -105,5 +138,22 @@ double degroote_norm_tendon_length(const DeGrooteCurveParameters& p, double norm
 // Force-velocity: d1 ln(d2 v + d3 + sqrt((d2 v + d3)² + 1)) + d4, and its closed-form inverse.
 CurvePoint degroote_force_velocity(double norm_fiber_velocity);
 double degroote_force_velocity_inverse(double fv);
+
+// Parameter-only constants of the DeGroote curves (bit-identical overloads, as for Thelen).
+struct DeGrooteCurveConstants {
+  double passive_offset = 0.0;  // exp(kPE (0.2 − 1)/e0)
+  double passive_den = 0.0;     // exp(kPE) − passive_offset
+  double tendon_kT = 0.0;       // ln(6)/εT
+};
+DeGrooteCurveConstants make_degroote_constants(const DeGrooteCurveParameters& p);
+CurvePoint degroote_passive_force_length(const DeGrooteCurveParameters& p,
+                                         const DeGrooteCurveConstants& k, double norm_fiber_length);
+double degroote_passive_force_length_integral(const DeGrooteCurveParameters& p,
+                                              const DeGrooteCurveConstants& k,
+                                              double norm_fiber_length);
+CurvePoint degroote_tendon_force_length(const DeGrooteCurveConstants& k, double norm_tendon_length);
+double degroote_tendon_force_length_integral(const DeGrooteCurveConstants& k,
+                                             double norm_tendon_length);
+double degroote_norm_tendon_length(const DeGrooteCurveConstants& k, double norm_tendon_force);
 
 }  // namespace fascicle

@@ -22,6 +22,8 @@ struct Musculotendon {
   double min_fiber_length_m = 0;    // OpenSim's lower bound on the fibre length
   MillardCurveParameters millard_in_use;  // after OpenSim's damped/undamped adjustments
   MillardCurves millard;                  // empty unless model == millard2012
+  ThelenCurveConstants thelen_constants;      // from params.thelen
+  DeGrooteCurveConstants degroote_constants;  // from params.degroote
 };
 
 // Validates and compiles. Millard: damping ≥ 0.001 (or rigid tendon) → fal minimum 0, F-V slopes at

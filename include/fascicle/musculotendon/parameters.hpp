@@ -68,7 +68,10 @@ struct DeGrooteCurveParameters {
   double tendon_strain_at_one_norm_force = 0.049;
   double active_force_width_scale = 1.0;
   double fiber_damping = 0.0;
-  double activation_dynamics_smoothing = 10.0;  // b in f = 0.5 + 0.5 tanh(b (u - a))
+  // b in f = 0.5 tanh(b (u − a)). OpenSim's property activation_dynamics_smoothing defaults to
+  // 0.1, the published model's value (OpenSim recommends 10 for activation/deactivation speeds
+  // closer to the time constants; set it explicitly for that).
+  double activation_dynamics_smoothing = 0.1;
 };
 
 // Everything needed to evaluate one musculotendon actuator.
