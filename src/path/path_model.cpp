@@ -136,7 +136,12 @@ void apply_wrap(const PathSetModel& model, const CompiledPath& path, int w,
     const PathVertex& b = out.vertices[j + 1];
     if (a.wrap >= 0 && a.wrap == b.wrap) continue;  // the arc of another wrap
     const Vec3 p1 = X_wrap_ground * a.p_ground, p2 = X_wrap_ground * b.p_ground;
-    const WrapResult r = wrap_segment(obj.spec, p1, p2, model.options.cylinder_ends);
+    const WrapResult r =
+        obj.spec.shape == WrapShape::cylinder &&
+                model.options.cylinder_method == CylinderMethod::opensim_iterative
+            ? wrap_cylinder_opensim(p1, p2, obj.spec.radius, obj.spec.length, obj.spec.quadrant,
+                                    path.wraps.size() == 1)
+            : wrap_segment(obj.spec, p1, p2, model.options.cylinder_ends);
     ws.status = r.status;
     if (r.status == WrapStatus::mandatory) {
       best_at = j;

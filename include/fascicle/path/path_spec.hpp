@@ -129,8 +129,17 @@ struct GeometryPathSpec {
 //             optimisation and for moment arms).
 enum class CylinderEndRule { opensim, infinite };
 
+// How a wrap cylinder is solved:
+//  geodesic          : the exact shortest (helical) path; exact moment arms (default);
+//  opensim_iterative : OpenSim 4's WrapCylinder construction (tangent candidates, apex plane and,
+//                      on paths with two or more wraps, its iterative axial sliding of the tangent
+//                      points to 0.1° tangency). Reproduces OpenSim's numbers where they differ
+//                      from the shortest path (docs/analyze.md); its moment arms are approximate.
+enum class CylinderMethod { geodesic, opensim_iterative };
+
 struct PathOptions {
   CylinderEndRule cylinder_ends = CylinderEndRule::opensim;
+  CylinderMethod cylinder_method = CylinderMethod::geodesic;
   // Paths with two or more wraps re-apply all wraps until the length changes by less than
   // `tolerance_m`, at most `max_iterations` times (OpenSim: 8 and 0.0005 m).
   int max_iterations = 8;

@@ -58,6 +58,11 @@ double wrapped_segment_length(const Vec3& p1, const Vec3& p2, const WrapResult& 
 
 WrapResult wrap_cylinder(const Vec3& p1, const Vec3& p2, double radius, double length,
                          WrapQuadrant quadrant, CylinderEndRule ends = CylinderEndRule::opensim);
+// OpenSim 4's WrapCylinder::wrapLine (CylinderMethod::opensim_iterative): same decisions as
+// wrap_cylinder; tangent points from OpenSim's candidate choice and apex plane, and, unless
+// `single_wrap` (the path has one wrap), its iterative axial sliding of the tangent points.
+WrapResult wrap_cylinder_opensim(const Vec3& p1, const Vec3& p2, double radius, double length,
+                                 WrapQuadrant quadrant, bool single_wrap);
 WrapResult wrap_sphere(const Vec3& p1, const Vec3& p2, double radius, WrapQuadrant quadrant);
 WrapResult wrap_ellipsoid(const Vec3& p1, const Vec3& p2, const Vec3& radii,
                           WrapQuadrant quadrant);
