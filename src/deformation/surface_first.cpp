@@ -226,6 +226,8 @@ SurfaceFirstSolver::SurfaceFirstSolver(SurfaceFirstSolver&&) noexcept = default;
 
 void SurfaceFirstSolver::reset() {
   contacts_.clear();
+  last_direction_.resize(0, 3);
+  last_gradient_.resize(0, 3);
   vertices_ = binding_.rest.V;
   has_previous_ = false;
   info_ = {};
@@ -270,13 +272,22 @@ int SurfaceFirstSolver::solve_volume(const Points3& rhs_free, const Points3& fix
   const int nf = static_cast<int>(b.free_vertices.size());
   const Vec3 centre = X.colwise().mean().transpose();
 
-  // first solve: the unconstrained minimiser and the direction for the warm-start gradient
-  Points3 g = gather_free(b, calc_volume_gradient(X, F));
-  Eigen::MatrixXd B(nf, 6);
-  B << rhs_free, g;
-  const Eigen::MatrixXd Z = solve(B);
-  const Points3 X0 = assemble(b, Z.leftCols(3), fixed);
-  Points3 Y = assemble(b, Z.rightCols(3), Points3::Zero(fixed.rows(), 3));
+  // first solve: the unconstrained minimiser, and a direction: the previous frame's (contact-free
+  // factor only) or K^-1 g at the warm-start point
+  Points3 g, X0, Y;
+  const bool reuse = contacts_.empty() && last_direction_.rows() == X.rows();
+  if (reuse) {
+    g = last_gradient_;
+    X0 = assemble(b, solve(rhs_free), fixed);
+    Y = last_direction_;
+  } else {
+    g = gather_free(b, calc_volume_gradient(X, F));
+    Eigen::MatrixXd B(nf, 6);
+    B << rhs_free, g;
+    const Eigen::MatrixXd Z = solve(B);
+    X0 = assemble(b, Z.leftCols(3), fixed);
+    Y = assemble(b, Z.rightCols(3), Points3::Zero(fixed.rows(), 3));
+  }
   int solves = 1;
   for (;;) {
     const double lambda = solve_volume_cubic(calc_volume_cubic(X0, Y, F, centre), b.rest_volume_m3);
@@ -294,6 +305,10 @@ int SurfaceFirstSolver::solve_volume(const Points3& rhs_free, const Points3& fix
     g = g_new;
     Y = assemble(b, solve(g), Points3::Zero(fixed.rows(), 3));
     ++solves;
+  }
+  if (contacts_.empty()) {
+    last_direction_ = std::move(Y);
+    last_gradient_ = std::move(g);
   }
   return solves;
 }

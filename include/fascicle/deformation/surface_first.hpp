@@ -173,6 +173,9 @@ class SurfaceFirstSolver {
   Points3 vertices_;
   Points3 skinned_;
   FramedLine line_;
+  // warm start of the volume iteration: the last direction Y = K^-1 g (contact-free factor) and g
+  Points3 last_direction_;
+  Points3 last_gradient_;
   bool has_previous_ = false;
   SurfaceFrameInfo info_;
 };
