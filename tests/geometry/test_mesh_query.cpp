@@ -210,6 +210,41 @@ TEST(MeshQuery, FarAwayAndOffsetMesh) {
   check_against_brute_force(m, 800, 400, 14);
 }
 
+TEST(MeshQuery, UnusedVerticesAndDegenerateTrianglesAgainstBruteForce) {
+  // The vertex k-d tree that seeds closest-point queries must skip unused vertices, and the plane
+  // lower bound must not reject zero-area triangles (no normal): a needle of three collinear
+  // vertices sticks out of a sphere, and unused vertices sit right where the queries are.
+  TriMesh m = make_icosphere(0.05, 2);
+  const Eigen::Index nv = m.V.rows(), nf = m.F.rows();
+  m.V.conservativeResize(nv + 5, 3);
+  m.V.row(nv + 0) = Eigen::RowVector3d(0.06, 0.0, 0.0);
+  m.V.row(nv + 1) = Eigen::RowVector3d(0.08, 0.0, 0.0);
+  m.V.row(nv + 2) = Eigen::RowVector3d(0.10, 0.0, 0.0);
+  m.V.row(nv + 3) = Eigen::RowVector3d(0.09, 0.004, 0.0);   // unused
+  m.V.row(nv + 4) = Eigen::RowVector3d(0.0, 0.0, 0.0601);   // unused
+  m.F.conservativeResize(nf + 1, 3);
+  m.F.row(nf) = Eigen::RowVector3i(static_cast<int>(nv), static_cast<int>(nv + 1), static_cast<int>(nv + 2));
+  const MeshQuery query(m);
+  std::mt19937_64 rng(21);
+  std::normal_distribution<double> g(0.0, 0.006);
+  Points3 P(600, 3);
+  for (Eigen::Index i = 0; i < P.rows(); ++i) {
+    const Vec3 centre = i % 2 == 0 ? Vec3(0.09, 0.0, 0.0) : Vec3(0.0, 0.0, 0.06);
+    P.row(i) = (centre + Vec3(g(rng), g(rng), g(rng))).transpose();
+  }
+  const std::vector<ClosestPoint> batch = query.calc_closest_points(P);
+  int on_needle = 0;
+  for (Eigen::Index i = 0; i < P.rows(); ++i) {
+    const Vec3 p = P.row(i).transpose();
+    const ClosestPoint bf = brute_closest(m, p);
+    const ClosestPoint one = query.calc_closest_point(p);
+    ASSERT_NEAR(one.distance, bf.distance, 1e-12 * bf.distance) << "point " << i;
+    ASSERT_NEAR(batch[static_cast<std::size_t>(i)].distance, bf.distance, 1e-12 * bf.distance) << "point " << i;
+    if (one.triangle == nf) ++on_needle;
+  }
+  EXPECT_GT(on_needle, 100);  // the degenerate triangle really is the answer for many points
+}
+
 TEST(MeshQuery, SphereSignedDistanceIsAnalyticAtVertices) {
   // Points on rays through the vertices: the closest point of the inscribed polyhedron is that
   // vertex when outside, so the distance is |p| - r exactly; inside it is at most r - |p|.
