@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <functional>
 
 namespace fascicle {
 namespace {
@@ -173,6 +174,54 @@ TEST(SurfaceFirst, VolumeGradientMatchesFiniteDifferences) {
     const double V = calc_enclosed_volume(mesh.V + t * Y, mesh.F, Vec3::Zero());
     EXPECT_NEAR(c[0] + t * (c[1] + t * (c[2] + t * c[3])), V, 1e-15);
   }
+}
+
+}  // namespace
+}  // namespace fascicle
+
+namespace fascicle {
+namespace {
+
+ErrorKind kind_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    EXPECT_FALSE(e.message().empty());
+    return e.kind();
+  }
+  ADD_FAILURE() << "no fascicle::Error thrown";
+  return ErrorKind::internal;
+}
+
+TEST(SurfaceFirstBadInput, ClearErrors) {
+  const CylinderMuscle m;
+  // attachment index out of range
+  std::vector<AttachmentArea> bad = m.areas;
+  bad[1].vertices.push_back(1000000);
+  EXPECT_EQ(kind_of([&] { bind_surface(m.mesh, straight_line(2), bad, {}); }), ErrorKind::bad_input);
+  // overlapping areas
+  bad = m.areas;
+  bad[1].vertices.push_back(m.areas[0].vertices[0]);
+  EXPECT_EQ(kind_of([&] { bind_surface(m.mesh, straight_line(2), bad, {}); }), ErrorKind::bad_input);
+  // inward-facing surface
+  TriMesh flipped = m.mesh;
+  flipped.F.col(1).swap(flipped.F.col(2));
+  EXPECT_EQ(kind_of([&] { bind_surface(flipped, straight_line(2), m.areas, {}); }), ErrorKind::bad_input);
+  // degenerate action line
+  Points3 point(2, 3);
+  point.setZero();
+  EXPECT_EQ(kind_of([&] { bind_surface(m.mesh, point, m.areas, {}); }), ErrorKind::bad_input);
+  // wrong number of attachment motions, NaN action line
+  const SurfaceBinding b = bind_surface(m.mesh, straight_line(2), m.areas, {}, {}, "test_muscle");
+  SurfaceFirstSolver solver(b, {});
+  SurfaceFrameInput in = hinge_frame(0.3);
+  in.attachment_motions.pop_back();
+  EXPECT_EQ(kind_of([&] { solver.calc_frame(in); }), ErrorKind::bad_input);
+  in = hinge_frame(0.3);
+  in.action_line(1, 0) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_EQ(kind_of([&] { solver.calc_frame(in); }), ErrorKind::bad_input);
+  // the solver still works after rejected input
+  EXPECT_LT((solver.calc_frame(hinge_frame(0.0)) - m.mesh.V).cwiseAbs().maxCoeff(), 1e-12);
 }
 
 }  // namespace
