@@ -37,8 +37,8 @@ std::string make_name_suggestion(std::string_view name, const std::vector<std::s
   std::string text;
   const std::string nearest = find_nearest_name(name, candidates);
   if (!nearest.empty()) text = "did you mean '" + nearest + "'? ";
-  if (candidates.empty()) return text + "there are no valid names here";
-  text += "valid names: ";
+  if (candidates.empty()) return text + "nothing is valid here";
+  text += "valid: ";
   for (size_t i = 0; i < candidates.size() && i < 12; ++i) text += (i ? ", " : "") + candidates[i];
   if (candidates.size() > 12) text += ", ...";
   return text;

@@ -107,7 +107,7 @@ struct Reader {
     if (p.is_relative()) p = folder / p;
     *resolved = p;
     if (!std::filesystem::exists(p))
-      throw_bad_input("mesh file '" + p.string() + "' does not exist at " + pointer,
+      throw_bad_input("mesh file '" + p.string() + "' does not exist",
                       at(pointer, "paths are relative to the scene file's folder"));
     try {
       LengthUnit u = LengthUnit::metre;
@@ -238,7 +238,7 @@ SceneSpec parse_scene(const std::string& text, const std::filesystem::path& path
     std::filesystem::path p(doc["motion"].at("file").get<std::string>());
     if (p.is_relative()) p = r.folder / p;
     if (!std::filesystem::exists(p))
-      throw_bad_input("motion file '" + p.string() + "' does not exist at /motion/file",
+      throw_bad_input("motion file '" + p.string() + "' does not exist",
                       r.at("/motion/file", "paths are relative to the scene file's folder"));
     motion.file = p;
     motion.frame_rate_hz = doc["motion"].value("frame_rate", motion.frame_rate_hz);

@@ -50,7 +50,7 @@ struct Validator {
   const std::string& file;
 
   [[noreturn]] void fail(const std::string& path, const std::string& message, std::string suggestion = {}) const {
-    throw_bad_input(message + " at " + (path.empty() ? "/" : path),
+    throw_bad_input(message,
                     {.file = file, .json_path = path.empty() ? "/" : path, .suggestion = std::move(suggestion)});
   }
 
