@@ -185,7 +185,7 @@ inline XResidual x_residual(const Fast& s, double u, double x) {
 }
 
 // u ∈ [lo, hi] with x(u) = x, for x(u) non-decreasing: Newton from `u`, safeguarded by
-// bisection. Stops after a Newton step below 1e-12 or when the bracket has collapsed.
+// bisection. Stops after a Newton step below 1e-9 or when the bracket has collapsed.
 template <class Fast>
 double newton_u(const Fast& s, double x, double u, double lo, double hi) {
   for (int it = 0; it < 100; ++it) {
@@ -195,8 +195,8 @@ double newton_u(const Fast& s, double x, double u, double lo, double hi) {
     if (hi - lo <= 4.0 * std::numeric_limits<double>::epsilon()) break;
     if (r.d > 0.0) {
       const double step = r.f / r.d;
-      // Converged: the error after this step is of order step² · x''/x' (rounding level).
-      if (std::abs(step) <= 1e-12) return u - step;
+      // Converged: the error after this step is of order step² · x''/(2x') ≤ 1e-17.
+      if (std::abs(step) <= 1e-9) return u - step;
       u -= step;
       if (!(u > lo && u < hi)) u = 0.5 * (lo + hi);
     } else {
@@ -262,6 +262,36 @@ SmoothSegmentedCurve::SmoothSegmentedCurve(std::vector<Segment> segments, double
     fast_.push_back(f);
   }
   integral_at_start_.push_back(acc);
+  // Inverse table for monotone curves (non-decreasing control ordinates ⇒ non-decreasing y(x)).
+  bool monotone = dydx_left_ >= 0.0 && dydx_right_ >= 0.0;
+  for (const Segment& s : segments_) {
+    for (int i = 0; i < 5; ++i) monotone = monotone && s.y[i + 1] >= s.y[i];
+  }
+  const double y_begin = segments_.front().y[0], y_end = segments_.back().y[5];
+  if (monotone && y_end > y_begin) {
+    constexpr int M = 64;
+    inverse_y0_ = y_begin;
+    inverse_inv_dy_ = M / (y_end - y_begin);
+    inverse_x_.resize(M + 1);
+    for (int j = 0; j <= M; ++j) {
+      inverse_x_[j] = (j == 0) ? get_x_begin() : (j == M) ? get_x_end()
+                                                           : calc_inverse(y_begin + j / inverse_inv_dy_);
+    }
+  }
+}
+
+double SmoothSegmentedCurve::calc_inverse_estimate(double y) const {
+  if (inverse_x_.empty()) return calc_inverse(y);
+  const int M = static_cast<int>(inverse_x_.size()) - 1;
+  const double t = (y - inverse_y0_) * inverse_inv_dy_;
+  if (t <= 0.0) return dydx_left_ > 0.0 ? get_x_begin() + (y - inverse_y0_) / dydx_left_ : get_x_begin();
+  if (t >= M) {
+    const double y_end = segments_.back().y[5];
+    return dydx_right_ > 0.0 ? get_x_end() + (y - y_end) / dydx_right_ : get_x_end();
+  }
+  const int j = static_cast<int>(t);
+  const double s = t - j;
+  return inverse_x_[j] + s * (inverse_x_[j + 1] - inverse_x_[j]);
 }
 
 double SmoothSegmentedCurve::solve_u(const Fast& f, double x) const {

@@ -271,6 +271,30 @@ void require_finite_input(const Musculotendon& m, double a, double lMT, double v
   }
 }
 
+// Starting fibre length for the equilibrium solve, from the state with a just-slack tendon
+// (fibre force along the tendon f_slack·F0, its slope dFmAT/dlM there, cos α there): the tendon
+// must carry about that force, less what the fibre loses by shortening while the tendon
+// stretches. lT1 = f_T⁻¹(f_slack) (tabulated/closed-form inverse), then one Newton step on
+// f_T(lT) = f_slack − k (lT − lTs) with k = dFmAT/dlM · cos α (dlM/dlT = −cos α).
+double calc_equilibrium_start(const Musculotendon& m, double f_slack, double dFmAT_dlM,
+                              double cos_slack, double lMT) {
+  const double lTs = m.params.tendon_slack_length_m, h = m.parallelogram_height_m;
+  double t1 = 1.0;  // normalised tendon length carrying f_slack
+  switch (m.params.model) {
+    case MuscleModel::millard2012:
+      t1 = m.millard.tendon_force_length.calc_inverse_estimate(f_slack);
+      break;
+    default: t1 = calc_tendon_length_for_force(m, f_slack) / lTs; break;
+  }
+  double lT = lTs * t1;
+  const CurvePoint ft = calc_tendon_force_length(m, t1);
+  const double k = dFmAT_dlM * cos_slack;  // normalised force per metre of tendon stretch
+  const double kT = ft.derivative / lTs;
+  if (kT + k > 0.0) lT -= (ft.value - f_slack + k * (lT - lTs)) / (kT + k);
+  const double lMAT = std::max(0.0, lMT - lT);
+  return std::sqrt(lMAT * lMAT + h * h);
+}
+
 MuscleOutputs rigid_outputs(const Musculotendon& m, double a, double lMT, double vMT) {
   MuscleOutputs o;
   const double h = m.parallelogram_height_m;
@@ -309,13 +333,13 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
     Geometry g;
     KnownCurves curves;
   };
-  const auto evaluate = [&](double lM, double vN) {
+  // fv depends on the pass's fixed velocity only: computed once per pass, passed in.
+  const auto evaluate = [&](double lM, double vN, double fv) {
     const Geometry g = fiber_geometry(m, lM, lMT);
     const double l = lM / l0;
     const CurvePoint fal = calc_active_force_length(m, l);
     const CurvePoint fpe = calc_passive_force_length(m, l);
     const CurvePoint ft = calc_tendon_force_length(m, g.lT / lTs);
-    const double fv = calc_force_velocity(m, a, vN).value;
     const double fm = a * fal.value * fv + fpe.value + beta * vN;
     const double dfm = (a * fv * fal.derivative + fpe.derivative) / l0;
     const double dcos = (g.cos_phi > 0.0) ? h * h / (lM * lM * lM * g.cos_phi) : 0.0;
@@ -337,9 +361,8 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
   }
   const double lMAT_slack = lMT - lTs;
   const double hi0 = std::sqrt(lMAT_slack * lMAT_slack + h * h);
-  // OpenSim's starting point: tendon at 1.01 lTs.
-  const double lMAT_start = lMT - 1.01 * lTs;
-  const double start = std::sqrt(std::max(0.0, lMAT_start) * std::max(0.0, lMAT_start) + h * h);
+  // Starting point (computed from the first pass's slack-end evaluation, see below).
+  double start = 0.0;
 
   // Each pass solves r(lM; vN) = 0 at a fixed fibre velocity and ends with `last` evaluated at
   // the returned fibre length (reused for the outputs). The slack end is evaluated first (a
@@ -354,15 +377,18 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
     at_lower = false;
     double lo = lo0, hi = hi0;
     bool lo_checked = false;
-    last = evaluate(hi, vN);
+    const double fv = calc_force_velocity(m, a, vN).value;
+    last = evaluate(hi, vN, fv);
     if (last.r <= 0.0) {
       lM = hi;
     } else {
-      double x = start;  // every pass from OpenSim's start (keeps the previous passes' results)
+      if (outer == 0) start = calc_equilibrium_start(m, last.r + last.curves.ft, last.dFmAT_dlM,
+                                                     last.g.cos_phi, lMT);
+      double x = start;  // every pass from the same start (keeps the previous passes' results)
       if (!(x > lo && x < hi)) x = 0.5 * (lo + hi);
       bool converged = false;
       for (int it = 0; it < 200; ++it, ++total_iterations) {
-        last = evaluate(x, vN);
+        last = evaluate(x, vN, fv);
         if (!std::isfinite(last.r)) fail_numerical(m, "non-finite force error in equilibrium");
         if (std::abs(last.r) <= 1e-13) { converged = true; break; }
         if (last.r < 0.0) { lo = x; lo_checked = true; } else { hi = x; }
@@ -372,7 +398,7 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
           // Newton (or bisection) needs the lower end: is the fibre stronger than the tendon
           // even at the minimum fibre length?
           lo_checked = true;
-          const Eval elo = evaluate(lo0, vN);
+          const Eval elo = evaluate(lo0, vN, fv);
           if (elo.r >= 0.0) {
             last = elo;
             at_lower = true;

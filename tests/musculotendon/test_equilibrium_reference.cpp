@@ -2,7 +2,8 @@
 // (data/previous_implementation_outputs.csv, written by commit c718149 before the speed work):
 // synthetic muscles of all three models over a grid of activation, path length and speed, and
 // the 92 muscles of both gait2392 models. Lengths agree to 1e-12 relative, forces to 1e-12 F0
-// (the equilibrium residual tolerance is 1e-13 F0, so no solver can promise more).
+// (the equilibrium residual tolerance is 1e-13 F0, so no solver can promise more), static
+// fibre velocities exactly and moving ones to the previous fixed-point tolerance.
 #include "fascicle/musculotendon/muscle.hpp"
 #include "fascicle/musculotendon/osim_parameters.hpp"
 
@@ -89,7 +90,10 @@ TEST(PreviousImplementation, EquilibriumAndStateRatesUnchanged) {
       const double dE = std::max(std::abs(o.fiber_passive_energy_J - v[6]),
                                  std::abs(o.tendon_energy_J - v[7])) / (F0 * (l0 + lTs));
       EXPECT_LE(dl, 1e-12) << where;
-      EXPECT_LE(dv, 1e-12) << where;
+      // With vMT ≠ 0 the fibre velocity comes from OpenSim's stiffness-sharing fixed point,
+      // iterated until it changes by < 1e-13; at contraction ratios near 0.99 that pins the
+      // previous implementation's value only to ~1e-11.
+      EXPECT_LE(dv, v[2] == 0.0 ? 1e-12 : 1e-11) << where;
       EXPECT_LE(dF, 1e-12) << where;
       EXPECT_LE(dE, 1e-12) << where;
       EXPECT_EQ(o.fiber_at_lower_bound, v[8] != 0.0) << where;

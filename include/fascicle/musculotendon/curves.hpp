@@ -59,15 +59,15 @@ double thelen_tendon_force_length_integral(const ThelenCurveConstants& k, double
 // A C²-continuous curve of quintic Bézier segments, extrapolated linearly outside (OpenSim's
 // SmoothSegmentedFunction). Built once; evaluation solves x(u) = x for the Bézier parameter u.
 // Fast path (built by the constructor): each segment keeps x(u), y(u) and ∫y dx in power form
-// and a table of u at equally spaced x with du/dx, so a cubic-Hermite guess for u is within ~1e-7
-// and two bracketed Newton steps reach machine precision.
+// and a table of u at equally spaced x with du/dx, so a cubic-Hermite guess for u is typically
+// within 1e-9 and one or two bracketed Newton steps reach machine precision.
 class SmoothSegmentedCurve {
  public:
   struct Segment {
     std::array<double, 6> x{};  // control-point abscissae (increasing)
     std::array<double, 6> y{};  // control-point ordinates
   };
-  static constexpr int kTableIntervals = 16;  // per segment, uniform in x
+  static constexpr int kTableIntervals = 64;  // per segment, uniform in x
   SmoothSegmentedCurve() = default;
   // dydx_left/right: slopes of the linear extrapolations (OpenSim's dydx0 / dydx1).
   SmoothSegmentedCurve(std::vector<Segment> segments, double dydx_left, double dydx_right);
@@ -78,6 +78,10 @@ class SmoothSegmentedCurve {
   double calc_integral(double x) const;
   // x such that y(x) = y, for curves that are strictly increasing (bisection-safeguarded Newton).
   double calc_inverse(double y) const;
+  // A cheap estimate of calc_inverse(y) (linear interpolation in a table built for curves whose
+  // control ordinates never decrease; exact on the linear extrapolations), for starting solvers.
+  // Falls back to calc_inverse for other curves.
+  double calc_inverse_estimate(double y) const;
   double get_x_begin() const { return segments_.front().x[0]; }
   double get_x_end() const { return segments_.back().x[5]; }
   const std::vector<Segment>& get_segments() const { return segments_; }
@@ -100,6 +104,8 @@ class SmoothSegmentedCurve {
   std::vector<Segment> segments_;
   std::vector<Fast> fast_;
   std::vector<double> integral_at_start_;  // ∫ from x_begin to each segment's start
+  std::vector<double> inverse_x_;           // x at equally spaced y (monotone curves only)
+  double inverse_y0_ = 0.0, inverse_inv_dy_ = 0.0;
   double dydx_left_ = 0.0, dydx_right_ = 0.0;
 };
 
