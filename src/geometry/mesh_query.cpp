@@ -161,7 +161,7 @@ struct MeshQuery::Bvh {
   // Triangles are stored in Morton order of their centroids ("slots"), so that triangles near in
   // space are near in memory: queries touch a few cache lines instead of scattered records.
   // Per slot, kStride doubles: the centre and radius of a bounding sphere (a cheap lower bound on
-  // the distance, to skip exact tests), then corners a, b, c, then the unit normal (plane bound).
+  // the distance, to skip exact tests), then corners a, b, c.
   static constexpr std::size_t kStride = 16;
   // Embree primitives are clusters of kCluster consecutive slots: one callback tests a few
   // neighbouring triangles stored together, which halves the memory traffic of a query.
@@ -192,18 +192,14 @@ struct MeshQuery::Bvh {
     const double* c = corners.data() + kStride * static_cast<std::size_t>(tri) + 4 + 3 * k;
     return {c[0], c[1], c[2]};
   }
-  // True if triangle `tri` is certainly farther from p than `limit`, by two cheap lower bounds on
-  // the distance: its bounding sphere (|p - centre| - radius) and its plane (|n . (p - a)|, n the
-  // unit normal, zero for a degenerate triangle). The plane test carries an absolute margin for the
-  // rounding of the dot product, so a triangle at distance <= limit is never rejected.
+  // True if triangle `tri` is certainly farther from p than `limit`: outside its bounding sphere
+  // grown by `limit` (squared comparison, no square root). The radius is rounded up at build time.
+  // (A plane lower bound |n . (p - a)| was tried as well: no measurable gain on the tibia.)
   bool is_farther(unsigned tri, const Vec3& p, double limit) const {
     const double* c = corners.data() + kStride * static_cast<std::size_t>(tri);
     const double cx = p.x() - c[0], cy = p.y() - c[1], cz = p.z() - c[2];
     const double reach = limit + c[3];
-    if (cx * cx + cy * cy + cz * cz > reach * reach) return true;
-    const double ax = p.x() - c[4], ay = p.y() - c[5], az = p.z() - c[6];
-    const double plane = std::abs(c[13] * ax + c[14] * ay + c[15] * az);
-    return plane > limit + 1e-14 * (std::abs(ax) + std::abs(ay) + std::abs(az));
+    return cx * cx + cy * cy + cz * cz > reach * reach;
   }
 };
 
@@ -484,12 +480,6 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
     c[1] = centre.y();
     c[2] = centre.z();
     c[3] = r * (1.0 + 1e-12) + 1e-300;  // rounded up: the bound stays a bound after rounding
-    const Vec3 a = mesh_.V.row(mesh_.F(f, 0)).transpose();
-    const Vec3 n = (mesh_.V.row(mesh_.F(f, 1)).transpose() - a).cross(mesh_.V.row(mesh_.F(f, 2)).transpose() - a);
-    const double n_norm = n.norm();
-    if (n_norm > 0.0 && std::isfinite(n_norm)) {
-      for (int k = 0; k < 3; ++k) c[13 + k] = n[k] / n_norm;
-    }
   }
   const Vec3 lo = mesh_.V.colwise().minCoeff().transpose();
   const Vec3 hi = mesh_.V.colwise().maxCoeff().transpose();
@@ -583,10 +573,11 @@ ClosestPoint MeshQuery::closest_with_hint(const Vec3& p, int hint_triangle,
   // Seeds: exact distances to a few candidate triangles give an upper bound on the answer, so
   // Embree's traversal starts with a tight sphere and prunes almost every node. (Any triangle's
   // exact distance is a valid bound; test_slot keeps the tie rule, so the answer is unchanged.)
+  // With a hint (batched queries: the previous, nearby query's triangle) the k-d tree search costs
+  // more than it saves (measured with callgrind), so it only seeds queries without one.
   if (hint_triangle >= 0) {
     test_slot(&q, static_cast<unsigned>(bvh_->slot_of[static_cast<std::size_t>(hint_triangle)]));
-  }
-  {
+  } else {
     unsigned nearest = 0;
     double nearest_d2 = 0.0;
     nanoflann::KNNResultSet<double, unsigned, unsigned> result(1);
