@@ -12,6 +12,7 @@ struct Invocation {
   std::function<void()> action;  // the work of the chosen subcommand; throws fascicle::Error
 };
 
+void add_mesh_commands(CLI::App& app, Invocation& run);  // cmd_mesh.cpp
 void add_demo_commands(CLI::App& app, Invocation& run);  // cmd_demo.cpp
 void add_run_commands(CLI::App& app, Invocation& run);   // cmd_run.cpp
 void add_muscle_commands(CLI::App& app, Invocation& run);  // cmd_muscle.cpp

@@ -24,6 +24,7 @@ int main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber);
 
   fascicle::cli::Invocation run;
+  fascicle::cli::add_mesh_commands(app, run);
   fascicle::cli::add_demo_commands(app, run);
   fascicle::cli::add_run_commands(app, run);
   fascicle::cli::add_muscle_commands(app, run);
