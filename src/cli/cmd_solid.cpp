@@ -107,9 +107,9 @@ void add_solid_commands(CLI::App& app, Invocation& run) {
           throw_usage("give --origin and --insertion, or --axis auto");
         }
         const LengthUnit unit = parse_length_unit(a->units);
-        const TriMesh mesh = read_mesh(a->mesh, unit);
         MeshFitOptions o;
-        o.count = parse_triple(a->lattice, "--lattice");
+        o.count = parse_triple(a->lattice, "--lattice");  // usage errors before reading files
+        const TriMesh mesh = read_mesh(a->mesh, unit);
         o.degree = {std::min(a->degree, std::min(2, o.count[0] - 1)), a->degree,
                     std::min(a->degree, o.count[2] - 1)};
         o.num_slices = a->slices;
