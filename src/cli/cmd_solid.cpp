@@ -49,7 +49,7 @@ std::array<int, 3> parse_triple(const std::string& text, const char* what) {
   std::array<int, 3> v{};
   if (std::sscanf(text.c_str(), "%dx%dx%d", &v[0], &v[1], &v[2]) != 3 || v[0] < 2 || v[1] < 3 ||
       v[2] < 2) {
-    throw_usage(fmt::format("{} must look like 4x12x10 (u radial x v around x w along), got '{}'",
+    throw_usage(fmt::format("{} must look like 4x16x14 (u radial x v around x w along), got '{}'",
                             what, text));
   }
   return v;
