@@ -15,13 +15,13 @@
 namespace fascicle {
 namespace {
 
-struct Run {
+struct CliResult {
   int code;
   std::string out;
 };
 
 // Runs the CLI with arguments; stdout captured, stderr discarded.
-Run run_cli(const std::string& args) {
+CliResult run_cli(const std::string& args) {
   const std::string cmd = std::string(FASCICLE_CLI_PATH) + " " + args + " 2>/dev/null";
   FILE* pipe = popen(cmd.c_str(), "r");
   std::string out;
@@ -36,7 +36,7 @@ std::string quoted(const std::filesystem::path& p) { return "'" + p.string() + "
 TEST(CliMesh, InfoJsonOnABox) {
   const auto dir = test::scratch_dir("cli_mesh_info");
   write_mesh(dir / "box.stl", make_box(Vec3(50, 10, 20)));  // mm
-  const Run r = run_cli("mesh info " + quoted(dir / "box.stl") + " --units mm --json --density 1000");
+  const CliResult r = run_cli("mesh info " + quoted(dir / "box.stl") + " --units mm --json --density 1000");
   ASSERT_EQ(r.code, 0) << r.out;
   const nlohmann::json j = nlohmann::json::parse(r.out);
   EXPECT_TRUE(j["validation"]["solid"].get<bool>());
@@ -50,13 +50,13 @@ TEST(CliMesh, InfoJsonOnABox) {
 
 TEST(CliMesh, ProblemsAreReportedWithExitZeroUnlessStrict) {
   const auto open = test::data_path("negative/open_cube.obj");
-  const Run r = run_cli("mesh info " + quoted(open) + " --json");
+  const CliResult r = run_cli("mesh info " + quoted(open) + " --json");
   ASSERT_EQ(r.code, 0);
   const nlohmann::json j = nlohmann::json::parse(r.out);
   EXPECT_EQ(j["validation"]["boundary_edges"]["count"], 4);
   EXPECT_TRUE(j["mass_properties"].is_null());
   EXPECT_EQ(run_cli("mesh info " + quoted(open) + " --strict").code, 3);
-  const Run text = run_cli("mesh info " + quoted(test::data_path("negative/nan_vertex.obj")));
+  const CliResult text = run_cli("mesh info " + quoted(test::data_path("negative/nan_vertex.obj")));
   EXPECT_EQ(text.code, 0);
   EXPECT_NE(text.out.find("NaN/Inf"), std::string::npos) << text.out;
 }
@@ -81,13 +81,13 @@ TEST(CliMesh, ConvertAndRepair) {
   const TriMesh back = read_mesh(dir / "ball.vtp");
   EXPECT_EQ(back.V, make_icosphere(0.05, 2).V);
 
-  const Run fixed = run_cli("mesh repair " + quoted(test::data_path("negative/flipped_face_cube.obj")) +
+  const CliResult fixed = run_cli("mesh repair " + quoted(test::data_path("negative/flipped_face_cube.obj")) +
                             " " + quoted(dir / "cube.stl"));
   ASSERT_EQ(fixed.code, 0) << fixed.out;
   EXPECT_NE(fixed.out.find("flipped 1 faces"), std::string::npos) << fixed.out;
   EXPECT_EQ(read_mesh(dir / "cube.stl").F.rows(), 12);
 
-  const Run refused = run_cli("mesh repair " +
+  const CliResult refused = run_cli("mesh repair " +
                               quoted(test::data_path("negative/nonmanifold_edge.obj")) + " " +
                               quoted(dir / "nm.obj"));
   EXPECT_EQ(refused.code, 3);
