@@ -18,6 +18,8 @@ void add_run_commands(CLI::App& app, Invocation& run);   // cmd_run.cpp
 void add_muscle_commands(CLI::App& app, Invocation& run);  // cmd_muscle.cpp
 void add_solid_commands(CLI::App& app, Invocation& run);  // cmd_solid.cpp
 void add_fibres_commands(CLI::App& app, Invocation& run);  // cmd_fibres.cpp
+void add_analyze_commands(CLI::App& app, Invocation& run);  // cmd_analyze.cpp
+void add_paths_commands(CLI::App& app, Invocation& run);  // cmd_paths.cpp
 
 
 }  // namespace fascicle::cli
