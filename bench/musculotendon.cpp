@@ -21,19 +21,22 @@ Musculotendon bench_muscle(MuscleModel model) {
   return compile_musculotendon(p);
 }
 
-// Static equilibrium (with all outputs and curve derivatives) over a sweep of path lengths.
-void BM_StaticEquilibrium(benchmark::State& state, MuscleModel model) {
+// Static equilibrium (with all outputs and curve derivatives) over a sweep of path lengths;
+// "_no_energies" skips the two elastic-energy integrals.
+void BM_StaticEquilibrium(benchmark::State& state, MuscleModel model, bool energies) {
   const Musculotendon m = bench_muscle(model);
   double lMT = 0.30;
   for (auto _ : state) {
     lMT = (lMT > 0.40) ? 0.30 : lMT + 1e-4;
-    const MuscleOutputs o = calc_static_equilibrium(m, 0.6, lMT, 0.0);
+    const MuscleOutputs o = calc_static_equilibrium(m, 0.6, lMT, 0.0, {.energies = energies});
     benchmark::DoNotOptimize(o.fiber_length_m);
   }
 }
-BENCHMARK_CAPTURE(BM_StaticEquilibrium, thelen, MuscleModel::thelen2003);
-BENCHMARK_CAPTURE(BM_StaticEquilibrium, millard, MuscleModel::millard2012);
-BENCHMARK_CAPTURE(BM_StaticEquilibrium, degroote, MuscleModel::degroote2016);
+BENCHMARK_CAPTURE(BM_StaticEquilibrium, thelen, MuscleModel::thelen2003, true);
+BENCHMARK_CAPTURE(BM_StaticEquilibrium, millard, MuscleModel::millard2012, true);
+BENCHMARK_CAPTURE(BM_StaticEquilibrium, degroote, MuscleModel::degroote2016, true);
+BENCHMARK_CAPTURE(BM_StaticEquilibrium, thelen_no_energies, MuscleModel::thelen2003, false);
+BENCHMARK_CAPTURE(BM_StaticEquilibrium, millard_no_energies, MuscleModel::millard2012, false);
 
 std::vector<Musculotendon> gait2392(const char* file) {
   const std::string path = std::string(FASCICLE_DEFAULT_DATA_DIR) + "/opensim/models/" + file;

@@ -128,6 +128,11 @@ double thelen_norm_fiber_velocity(const ThelenCurveParameters& p, double a, doub
 }
 
 CurvePoint thelen_force_velocity(const ThelenCurveParameters& p, double a, double v) {
+  if (v == 0.0) {
+    // Isometric shortcut, the same arithmetic as the general path below at fv = 1.
+    const double c = 0.25 + 0.75 * a, q = 1.0 + 1.0 / p.Af;
+    return {1.0, 1.0 / (c * (1.0 + 1.0 / p.Af) / (q * q))};
+  }
   const ThelenFv t = make_thelen_fv(p, a);
   double fv = 0.0;
   if (v < t.g(0.0)) {
@@ -249,13 +254,19 @@ SmoothSegmentedCurve::SmoothSegmentedCurve(std::vector<Segment> segments, double
     f.total = poly10(f.ai0, 1.0);
     f.dx = (f.x5 - f.x0) / N;
     f.inv_dx = (f.dx > 0.0) ? 1.0 / f.dx : 0.0;
+    std::array<double, N + 1> dudx{};
     for (int j = 0; j <= N; ++j) {
       const double xj = (j == N) ? f.x5 : f.x0 + j * f.dx;
       const double guess = (f.x5 > f.x0) ? (xj - f.x0) / (f.x5 - f.x0) : 0.0;
       const double u = (j == 0) ? 0.0 : (j == N) ? 1.0 : newton_u(f, xj, guess, 0.0, 1.0);
       const double d = x_residual(f, u, xj).d;
       f.table_u[j] = u;
-      f.table_dudx[j] = (d > 0.0) ? 1.0 / d : 0.0;  // 0: the Hermite guess falls back to linear-ish
+      dudx[j] = (d > 0.0) ? 1.0 / d : 0.0;  // 0: a flatter guess; Newton still brackets it
+    }
+    for (int j = 0; j < N; ++j) {
+      const double u0 = f.table_u[j], u1 = f.table_u[j + 1];
+      const double m0 = dudx[j] * f.dx, m1 = dudx[j + 1] * f.dx;
+      f.guess[j] = {u0, m0, 3.0 * (u1 - u0) - 2.0 * m0 - m1, 2.0 * (u0 - u1) + m0 + m1};
     }
     integral_at_start_.push_back(acc);
     acc += f.total;
@@ -300,11 +311,9 @@ double SmoothSegmentedCurve::solve_u(const Fast& f, double x) const {
   const int j = std::min(static_cast<int>(t), N - 1);
   const double s = t - j;
   const double u0 = f.table_u[j], u1 = f.table_u[j + 1];
-  const double m0 = f.table_dudx[j] * f.dx, m1 = f.table_dudx[j + 1] * f.dx;
   // Cubic Hermite guess for u(x) on the table interval.
-  const double w = 1.0 - s;
-  double u = (1.0 + 2.0 * s) * w * w * u0 + s * w * w * m0 + s * s * (3.0 - 2.0 * s) * u1 -
-             s * s * w * m1;
+  const std::array<double, 4>& c = f.guess[j];
+  double u = c[0] + s * (c[1] + s * (c[2] + s * c[3]));
   // Bracket: the table interval, widened by a hair for the rounding of its end points.
   const double lo = std::max(0.0, u0 - 1e-12), hi = std::min(1.0, u1 + 1e-12);
   if (!(u > lo && u < hi)) u = std::clamp(u, lo, hi);

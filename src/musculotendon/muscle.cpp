@@ -220,7 +220,8 @@ struct KnownCurves {
 
 // Fills the outputs for a fully known kinematic state.
 void fill_outputs(const Musculotendon& m, double a, const Geometry& g, double vM, double lMT,
-                  double vMT, bool rigid, MuscleOutputs& o, const KnownCurves* known = nullptr) {
+                  double vMT, bool rigid, MuscleOutputs& o, const KnownCurves* known = nullptr,
+                  bool energies = true) {
   const auto& p = m.params;
   const double F0 = p.max_isometric_force_N, l0 = p.optimal_fiber_length_m;
   o.activation = a;
@@ -253,6 +254,7 @@ void fill_outputs(const Musculotendon& m, double a, const Geometry& g, double vM
   }
   o.norm_tendon_force = o.tendon_force_N / F0;
   o.fiber_active_power_W = -o.active_fiber_force_N * vM;
+  if (!energies) return;  // left NaN
   o.fiber_passive_energy_J = calc_passive_energy_J(m, g.lM);
   o.tendon_energy_J = rigid ? 0.0 : calc_tendon_energy_J(m, g.lT);
 }
@@ -315,7 +317,7 @@ MuscleOutputs rigid_outputs(const Musculotendon& m, double a, double lMT, double
 }  // namespace
 
 MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation, double lMT,
-                                      double vMT) {
+                                      double vMT, const EquilibriumOptions& options) {
   require_finite_input(m, activation, lMT, vMT);
   const double a = std::clamp(activation, m.minimum_activation, 1.0);
   if (m.params.rigid_tendon) return rigid_outputs(m, a, lMT, vMT);
@@ -431,7 +433,7 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
   // fixed point may not settle; the outputs always use the velocity the length was solved with.
   double vM = vN_solved * vscale;
   if (at_lower && vM < 0.0) vM = 0.0;
-  fill_outputs(m, a, last.g, vM, lMT, vMT, false, o, &last.curves);
+  fill_outputs(m, a, last.g, vM, lMT, vMT, false, o, &last.curves, options.energies);
   o.fiber_at_lower_bound = at_lower;
   o.iterations = total_iterations;
   return o;

@@ -96,7 +96,9 @@ class SmoothSegmentedCurve {
     double x0 = 0, x5 = 0, y0 = 0, y5 = 0, inv_dx = 0, dx = 0, total = 0;
     std::array<double, 6> ax0{}, ay0{}, ax1{}, ay1{};
     std::array<double, 11> ai0{}, ai1{};
-    std::array<double, kTableIntervals + 1> table_u{}, table_dudx{};
+    std::array<double, kTableIntervals + 1> table_u{};
+    // Cubic Hermite guess on table interval j: u ≈ Σ guess[j][k] s^k, s ∈ [0, 1] across it.
+    std::array<std::array<double, 4>, kTableIntervals> guess{};
   };
   double solve_u(const Fast& f, double x) const;
   int find_segment(double x) const;  // -1 left of the curve, size() right of it
