@@ -616,34 +616,37 @@ void calc_body_jacobians(const Skeleton& skeleton, const SkeletonState& s,
   const SimTK::State& st = s.impl().state;
   const int nb = skeleton.num_bodies();
   const int nc = skeleton.num_coordinates();
-  // Simbody's frame Jacobian of a frame on each body whose origin is the body point now at the
-  // ground origin (station -Rᵀp in the body frame).
-  SimTK::Array_<SimTK::MobilizedBodyIndex> bodies(nb - 1);
-  SimTK::Array_<SimTK::Vec3> stations(nb - 1);
-  for (int b = 1; b < nb; ++b) {
-    const Transform& X = s.get_body_transform(b);
-    bodies[b - 1] = m.mobod[b];
-    stations[b - 1] = to_simtk(Vec3(-(X.linear().transpose() * X.translation())));
-  }
-  SimTK::Matrix_<SimTK::SpatialVec> JF;
-  if (nb > 1) m.matter->calcFrameJacobian(st, bodies, stations, JF);
-  const MatX& C = s.get_coupling();
   J.resize(nb);
-  Eigen::Matrix<double, 6, Eigen::Dynamic> Ju(6, nc);
-  for (int b = 0; b < nb; ++b) {
-    if (b == 0) {
-      J[0].setZero(6, nc);
-      continue;
+  for (int b = 0; b < nb; ++b) J[b].setZero(6, nc);
+  // A unit speed of coordinate j moves the child body B of its joint, and the whole subtree of B
+  // with it, rigidly: one twist (ω, velocity of the point at the ground origin) for all of them.
+  // Simbody's hinge column gives B's spatial velocity per unit u (ω; velocity of B's origin).
+  for (int j = 0; j < nc; ++j) {
+    const SimTK::MobilizedBody& mb = m.matter->getMobilizedBody(m.coord_mobod[j]);
+    const SimTK::SpatialVec H = mb.getHCol(st, SimTK::MobilizerUIndex(m.coord_local_q[j]));
+    const int body = m.body_index.at(m.spec.joints[m.coordinates[j].joint].child);
+    const Vec3 w = to_eigen(H[0]);
+    const Vec3 v0 = to_eigen(H[1]) - w.cross(Vec3(s.get_body_transform(body).translation()));
+    for (int d = 1; d < nb; ++d) {
+      int a = d;
+      while (a > 0 && a != body) a = m.parent_body[a];
+      if (a != body) continue;
+      J[d].col(j).head<3>() = w;
+      J[d].col(j).tail<3>() = v0;
     }
-    for (int j = 0; j < nc; ++j) {
-      const SimTK::SpatialVec& v = JF(b - 1, m.coord_q[j]);
-      for (int k = 0; k < 3; ++k) {
-        Ju(k, j) = v[0][k];
-        Ju(3 + k, j) = v[1][k];
-      }
-    }
-    J[b].noalias() = Ju * C;
   }
+  // Coupling: a dependent coordinate moves with its independent ones (J·C, C sparse).
+  const MatX& C = s.get_coupling();
+  for (const int c : m.coupler_order) {
+    const int dep = m.coupler_dependent[c];
+    for (int b = 1; b < nb; ++b) {
+      if (J[b].col(dep).isZero(0.0)) continue;
+      for (int k = 0; k < nc; ++k)
+        if (k != dep && C(dep, k) != 0.0) J[b].col(k) += C(dep, k) * J[b].col(dep);
+    }
+  }
+  for (const int c : m.coupler_order)
+    for (int b = 1; b < nb; ++b) J[b].col(m.coupler_dependent[c]).setZero();
 }
 
 double calc_constraint_error(const Skeleton& skeleton, const SkeletonState& s) {
