@@ -334,6 +334,7 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
     double r, dr, dFmAT_dlM, dFt_dlT;
     Geometry g;
     KnownCurves curves;
+    KnownCurves slopes;  // d/dl of fal, fpe and d/d(lT/lTs) of f_T
   };
   // fv depends on the pass's fixed velocity only: computed once per pass, passed in.
   const auto evaluate = [&](double lM, double vN, double fv) {
@@ -348,7 +349,7 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
     const double dFmAT = dfm * g.cos_phi + fm * dcos;
     const double dFt_dlT = ft.derivative / lTs;
     return Eval{fm * g.cos_phi - ft.value, dFmAT + dFt_dlT / g.cos_phi, dFmAT, dFt_dlT, g,
-                {fal.value, fpe.value, ft.value}};
+                {fal.value, fpe.value, ft.value}, {fal.derivative, fpe.derivative, ft.derivative}};
   };
 
   // Bracket: [minimum fibre length, fibre length at which the tendon is exactly slack].
@@ -396,6 +397,21 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
         if (last.r < 0.0) { lo = x; lo_checked = true; } else { hi = x; }
         if (hi - lo <= 1e-15 * hi) { converged = true; break; }
         double next = (last.dr > 0.0 && std::isfinite(last.dr)) ? x - last.r / last.dr : -1.0;
+        if (!moving && next > lo && next < hi && std::abs(next - x) <= 1e-9 * l0) {
+          // Final Newton step without a confirming evaluation: after a step δ ≤ 1e-9 l0 the
+          // error is O(r''δ²) ≪ 1e-13 F0, and the curve values at the new length follow from
+          // their slopes to O(δ²) (≈ 1e-18 relative), so they are updated, not re-evaluated.
+          const Geometry g = fiber_geometry(m, next, lMT);
+          const double dl = (next - x) / l0, dt = (g.lT - last.g.lT) / lTs;
+          last.curves.fal += last.slopes.fal * dl;
+          last.curves.fpe += last.slopes.fpe * dl;
+          last.curves.ft += last.slopes.ft * dt;
+          last.g = g;
+          x = next;
+          ++total_iterations;
+          converged = true;
+          break;
+        }
         if (!(next > lo && next < hi) && !lo_checked) {
           // Newton (or bisection) needs the lower end: is the fibre stronger than the tendon
           // even at the minimum fibre length?
