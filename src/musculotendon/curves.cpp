@@ -295,7 +295,9 @@ double SmoothSegmentedCurve::calc_inverse_estimate(double y) const {
   if (inverse_x_.empty()) return calc_inverse(y);
   const int M = static_cast<int>(inverse_x_.size()) - 1;
   const double t = (y - inverse_y0_) * inverse_inv_dy_;
-  if (t <= 0.0) return dydx_left_ > 0.0 ? get_x_begin() + (y - inverse_y0_) / dydx_left_ : get_x_begin();
+  if (!(t > 0.0)) {  // also NaN: no integer conversion of it below
+    return dydx_left_ > 0.0 ? get_x_begin() + (y - inverse_y0_) / dydx_left_ : get_x_begin();
+  }
   if (t >= M) {
     const double y_end = segments_.back().y[5];
     return dydx_right_ > 0.0 ? get_x_end() + (y - y_end) / dydx_right_ : get_x_end();
