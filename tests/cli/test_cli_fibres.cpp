@@ -19,13 +19,9 @@ struct FibresCliRun {
 };
 
 FibresCliRun run_fibres_cli(const std::string& args) {
-  const std::string cmd = std::string(FASCICLE_CLI_PATH) + " -q fibres " + args + " 2>&1";
-  std::string out;
-  FILE* pipe = popen(cmd.c_str(), "r");
-  std::array<char, 4096> buf{};
-  while (pipe && fgets(buf.data(), buf.size(), pipe)) out += buf.data();
-  const int status = pipe ? pclose(pipe) : -1;
-  return {WEXITSTATUS(status), out};
+  const auto r =
+      fascicle::test::run_command(std::string(FASCICLE_CLI_PATH) + " -q fibres " + args + " 2>&1");
+  return {r.exit_code, r.output};
 }
 
 std::string ta_mesh() {

@@ -22,13 +22,8 @@ struct CliResult {
 
 // Runs the CLI with arguments; stdout captured, stderr discarded.
 CliResult run_cli(const std::string& args) {
-  const std::string cmd = std::string(FASCICLE_CLI_PATH) + " " + args + " 2>/dev/null";
-  FILE* pipe = popen(cmd.c_str(), "r");
-  std::string out;
-  std::array<char, 4096> buf;
-  while (std::size_t n = std::fread(buf.data(), 1, buf.size(), pipe)) out.append(buf.data(), n);
-  const int status = pclose(pipe);
-  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, out};
+  const auto r = test::run_command(std::string(FASCICLE_CLI_PATH) + " " + args + " 2>/dev/null");
+  return {r.exit_code, r.output};
 }
 
 std::string quoted(const std::filesystem::path& p) { return "'" + p.string() + "'"; }

@@ -2,8 +2,11 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
+#include <cstdio>
 #include <cstdlib>
 #include <stdexcept>
+#include <sys/wait.h>
 #include <unistd.h>
 
 namespace fascicle::test {
@@ -25,6 +28,16 @@ std::filesystem::path data_path(const std::string& relative) {
                              "FASCICLE_DATA_DIR to its location)");
   }
   return p;
+}
+
+CommandResult run_command(const std::string& command) {
+  FILE* pipe = popen(command.c_str(), "r");
+  if (pipe == nullptr) return {-1, ""};
+  std::string out;
+  std::array<char, 4096> buf{};
+  while (std::size_t n = std::fread(buf.data(), 1, buf.size(), pipe)) out.append(buf.data(), n);
+  const int status = pclose(pipe);
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, out};
 }
 
 std::filesystem::path scratch_dir(const std::string& name) {

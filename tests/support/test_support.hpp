@@ -13,6 +13,14 @@ std::filesystem::path data_dir();
 // when it is missing: tests that need real data never pass silently without it.
 std::filesystem::path data_path(const std::string& relative);
 
+// Runs a shell command and captures its standard output (append " 2>&1" to the command to
+// capture standard error too). exit_code is -1 when the command did not exit normally.
+struct CommandResult {
+  int exit_code;
+  std::string output;
+};
+CommandResult run_command(const std::string& command);
+
 // A fresh, empty folder under the system temporary directory, unique to this test.
 std::filesystem::path scratch_dir(const std::string& name);
 
