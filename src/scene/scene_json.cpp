@@ -226,7 +226,8 @@ SceneSpec parse_scene(const std::string& text, const std::filesystem::path& path
     }
     m.activation = j.value("activation", m.activation);
     m.fibre_template = j.value("fibre_template", std::string());
-    for (const auto& [key, value] : j.value("options", json::object()).items()) {
+    const json options = j.value("options", json::object());  // items() must not outlive it
+    for (const auto& [key, value] : options.items()) {
       if (!value.is_number())
         throw_bad_input("muscle options must be numbers", r.at(ptr + "/options/" + escape_json_pointer(key)));
       m.options[key] = value.get<double>();
