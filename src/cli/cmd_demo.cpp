@@ -23,11 +23,11 @@ struct DemoArgs {
 };
 
 void run_demo(const DemoArgs& args) {
-  const Registry registry = make_default_registry();
+  const Registry registry = make_cli_registry();
   const DemoScene demo = make_demo_leg(100.0, args.resolution);
   const Model model = compile(demo.spec, registry);
   const CoordinateTrajectory trajectory = make_trajectory(model, demo.motion, args.fps);
-  auto writers = make_writers(registry, {});
+  auto writers = make_writers(registry, get_default_writer_names());
   std::vector<FrameWriter*> use;
   for (auto& w : writers) use.push_back(w.get());
   DriverOptions options;

@@ -22,7 +22,7 @@ struct RunArgs {
 };
 
 void run_scene(const RunArgs& args) {
-  const Registry registry = make_default_registry();
+  const Registry registry = make_cli_registry();
   const SceneSpec spec = load_scene(args.scene, registry);
   const Model model = compile(spec, registry);
   std::filesystem::path motion_file = args.motion;
@@ -36,6 +36,7 @@ void run_scene(const RunArgs& args) {
   const CoordinateTrajectory trajectory = make_trajectory(model, read_table(motion_file), fps);
   std::vector<std::string> names;
   for (const auto& w : spec.outputs) names.push_back(w.type);
+  if (names.empty()) names = get_default_writer_names();
   auto writers = make_writers(registry, names);
   std::vector<FrameWriter*> use;
   for (auto& w : writers) use.push_back(w.get());

@@ -5,6 +5,12 @@
 #include <CLI/CLI.hpp>
 
 #include <functional>
+#include <string>
+#include <vector>
+
+namespace fascicle {
+struct Registry;
+}
 
 namespace fascicle::cli {
 
@@ -20,6 +26,12 @@ void add_solid_commands(CLI::App& app, Invocation& run);  // cmd_solid.cpp
 void add_fibres_commands(CLI::App& app, Invocation& run);  // cmd_fibres.cpp
 void add_analyze_commands(CLI::App& app, Invocation& run);  // cmd_analyze.cpp
 void add_paths_commands(CLI::App& app, Invocation& run);  // cmd_paths.cpp
+
+// The registry of `fascicle run` and `fascicle demo` (cli_registry.cpp): the library's built-ins
+// plus the kinds of the modules above the scene (e.g. the report writer), and the writers a run
+// uses when the scene names none.
+Registry make_cli_registry();
+std::vector<std::string> get_default_writer_names();
 
 
 }  // namespace fascicle::cli

@@ -24,8 +24,15 @@ struct MuscleFrame {
   MuscleOutputs hill;                 // NaN when the muscle has no actuator
   Points3 surface;                    // ground frame; rows match the Model's rest mesh
   std::vector<Points3> fibres;        // polylines in ground (optional)
+  VecX fibre_length_m;                // per fibre (empty without fibres)
+  VecX fibre_strain;                  // per fibre: length / rest length − 1
+  VecX fibre_pennation_rad;           // per fibre: angle to the action line (length-weighted)
+  double mean_fibre_length_m = nan;
+  double mean_pennation_rad = nan;
   double volume_m3 = nan;
   double relative_volume_change = nan;  // volume / rest volume − 1
+  double max_bone_penetration_m = nan;  // deepest surface point inside a bone, beyond rest contact
+  double max_muscle_overlap_m = nan;    // deepest surface point inside another muscle
 };
 
 struct State {
