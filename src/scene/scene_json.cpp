@@ -26,6 +26,7 @@ SchemaNode get_scene_schema(const Registry& registry) {
   const SchemaNode body = object({
       required("name", string()),
       optional("mesh", string()),
+      optional("meshes", array(string(), 1)),
       optional("mass", number(0.0)),
       optional("center_of_mass", vec3()),
       optional("inertia", array(number(), 6)),
@@ -167,7 +168,26 @@ SceneSpec parse_scene(const std::string& text, const std::filesystem::path& path
     const std::string ptr = "/bodies/" + std::to_string(i);
     SceneBodySpec b;
     b.name = j.at("name");
+    if (j.contains("mesh") && j.contains("meshes"))
+      throw_bad_input("a body has either \"mesh\" or \"meshes\", not both",
+                      r.at(ptr, "list every file under \"meshes\""));
     if (j.contains("mesh")) b.mesh = r.read_mesh_at(j.at("mesh"), ptr + "/mesh", &b.mesh_file);
+    if (j.contains("meshes")) {
+      // Several closed surfaces (e.g. tibia and fibula) as one rigid body: their union.
+      TriMesh all;
+      const auto& files = j.at("meshes");
+      for (size_t k = 0; k < files.size(); ++k) {
+        std::filesystem::path resolved;
+        const TriMesh part = r.read_mesh_at(files[k], ptr + "/meshes/" + std::to_string(k), &resolved);
+        const auto nv = all.V.rows(), nf = all.F.rows();
+        all.V.conservativeResize(nv + part.V.rows(), 3);
+        all.V.bottomRows(part.V.rows()) = part.V;
+        all.F.conservativeResize(nf + part.F.rows(), 3);
+        all.F.bottomRows(part.F.rows()) = part.F.array() + static_cast<int>(nv);
+        b.mesh_file += (k ? ";" : "") + resolved.string();
+      }
+      b.mesh = std::move(all);
+    }
     if (j.contains("mass")) b.mass_kg = j.at("mass").get<double>();
     if (j.contains("center_of_mass")) b.center_of_mass = r.unit * get_vec3(j.at("center_of_mass"));
     if (j.contains("inertia")) {
