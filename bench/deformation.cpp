@@ -22,7 +22,7 @@ Transform rotation_about_x(double angle, const Vec3& centre) {
 
 struct Cylinder {
   TriMesh mesh = make_cylinder(0.02, 0.2, 100, 99);  // 10,002 vertices
-  std::vector<AttachmentArea> areas{{"origin", {}}, {"insertion", {}}};
+  std::vector<SurfaceAttachment> areas{{"origin", {}}, {"insertion", {}}};
   Cylinder() {
     for (int i = 0; i < mesh.V.rows(); ++i) {
       if (mesh.V(i, 2) < -0.09) areas[0].vertices.push_back(i);
@@ -108,7 +108,7 @@ void BM_Soleus_AnkleRotation(benchmark::State& state) {
   const MeshQuery tibia(read_mesh(dir / "VHF_Right_Bone_Tibia_smooth.stl", LengthUnit::millimetre));
   const MeshQuery fibula(read_mesh(dir / "VHF_Right_Bone_Fibula_smooth.stl", LengthUnit::millimetre));
   const double z0 = soleus.V.col(2).minCoeff(), z1 = soleus.V.col(2).maxCoeff();
-  std::vector<AttachmentArea> areas{{"origin", {}}, {"insertion", {}}};
+  std::vector<SurfaceAttachment> areas{{"origin", {}}, {"insertion", {}}};
   Vec3 po = Vec3::Zero(), pi = Vec3::Zero();
   for (int i = 0; i < soleus.V.rows(); ++i) {
     const double t = (soleus.V(i, 2) - z0) / (z1 - z0);

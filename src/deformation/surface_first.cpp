@@ -44,7 +44,7 @@ Points3 gather_free(const SurfaceBinding& b, const Points3& X) {
 // Binding
 
 SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_action_line,
-                            std::vector<AttachmentArea> attachments, const BoneQueries& bones,
+                            std::vector<SurfaceAttachment> attachments, const BoneQueries& bones,
                             const SurfaceFirstOptions& options, std::string name) {
   SurfaceBinding b;
   b.name = std::move(name);

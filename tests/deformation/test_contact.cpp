@@ -9,7 +9,7 @@ namespace {
 
 struct PressScene {
   TriMesh muscle = make_cylinder(0.02, 0.2, 48, 60);
-  std::vector<AttachmentArea> areas{{"origin", {}}, {"insertion", {}}};
+  std::vector<SurfaceAttachment> areas{{"origin", {}}, {"insertion", {}}};
   Points3 line;
   PressScene() {
     for (int i = 0; i < muscle.V.rows(); ++i) {

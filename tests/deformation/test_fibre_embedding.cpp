@@ -42,7 +42,7 @@ std::vector<Points3> axial_fibres() {
 
 struct Muscle {
   TriMesh mesh = make_cylinder(0.02, 0.2, 32, 40);
-  std::vector<AttachmentArea> areas{{"origin", {}}, {"insertion", {}}};
+  std::vector<SurfaceAttachment> areas{{"origin", {}}, {"insertion", {}}};
   Points3 line;
   Muscle() {
     for (int i = 0; i < mesh.V.rows(); ++i) {

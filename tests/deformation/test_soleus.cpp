@@ -39,7 +39,7 @@ TEST(SurfaceFirstSoleus, AnkleRotationKeepsVolumeAndStaysOutOfShankBones) {
   ASSERT_GT(soleus.V.rows(), 10000);
 
   // origin: top 4% (rides on the shank); insertion: bottom 4% (rides on the foot)
-  std::vector<AttachmentArea> areas{{"origin", z_band(soleus, 0.04, true)},
+  std::vector<SurfaceAttachment> areas{{"origin", z_band(soleus, 0.04, true)},
                                     {"insertion", z_band(soleus, 0.04, false)}};
   const Vec3 p_origin = centroid(soleus, areas[0].vertices);
   const Vec3 p_insertion = centroid(soleus, areas[1].vertices);

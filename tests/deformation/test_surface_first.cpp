@@ -17,7 +17,7 @@ constexpr double kRadius = 0.02, kHeight = 0.2;
 // A cylinder muscle along z in [-0.1, 0.1] m with the end caps (|z| > 0.09) as attachment areas.
 struct CylinderMuscle {
   TriMesh mesh = make_cylinder(kRadius, kHeight, 32, 40);
-  std::vector<AttachmentArea> areas;
+  std::vector<SurfaceAttachment> areas;
   CylinderMuscle() {
     areas = {{"origin", {}}, {"insertion", {}}};
     for (int i = 0; i < mesh.V.rows(); ++i) {
@@ -196,7 +196,7 @@ ErrorKind kind_of(const std::function<void()>& f) {
 TEST(SurfaceFirstBadInput, ClearErrors) {
   const CylinderMuscle m;
   // attachment index out of range
-  std::vector<AttachmentArea> bad = m.areas;
+  std::vector<SurfaceAttachment> bad = m.areas;
   bad[1].vertices.push_back(1000000);
   EXPECT_EQ(kind_of([&] { bind_surface(m.mesh, straight_line(2), bad, {}); }), ErrorKind::bad_input);
   // overlapping areas

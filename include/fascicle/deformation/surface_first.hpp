@@ -24,7 +24,7 @@
 namespace fascicle {
 
 // A set of surface vertices that moves rigidly with a bone (an origin or insertion area).
-struct AttachmentArea {
+struct SurfaceAttachment {
   std::string name;           // e.g. "origin", "insertion" (for messages)
   std::vector<int> vertices;  // rows of the rest surface's V
 };
@@ -62,7 +62,7 @@ struct SurfaceBinding {
   VecX vertex_s;                // per vertex: normalised arc length of the closest line point
   Points3 offset_local;         // per vertex: (v - line point) in the line frame at s
   Points3 delta_local;          // per vertex: differential coordinate (L V)_i in the line frame
-  std::vector<AttachmentArea> attachments;
+  std::vector<SurfaceAttachment> attachments;
   std::vector<int> fixed_vertices;  // all attachment vertices (sorted)
   std::vector<int> fixed_area;      // attachment area of each fixed vertex
   std::vector<int> free_vertices;   // the other vertices (sorted)
@@ -91,7 +91,7 @@ using BoneQueries = std::vector<const MeshQuery*>;
 // (bad input) for an open or inward surface, bad or overlapping attachment indices, a degenerate
 // action line; (usage) for invalid options.
 SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_action_line,
-                            std::vector<AttachmentArea> attachments, const BoneQueries& bones,
+                            std::vector<SurfaceAttachment> attachments, const BoneQueries& bones,
                             const SurfaceFirstOptions& options = {}, std::string name = {});
 
 // One frame's input.
