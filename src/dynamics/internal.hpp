@@ -1,0 +1,29 @@
+// Internal helpers of the dynamics module (not installed).
+#pragma once
+
+#include "fascicle/dynamics/solid_dynamics.hpp"
+
+namespace fascicle::dynamics_detail {
+
+// The 3#P x 3#P matrix with the model's lower block pattern (diagonal blocks full), values zero.
+Eigen::SparseMatrix<double> make_pattern_matrix(const SolidDynamicsModel& m);
+
+// Position in valuePtr() of entry (3 I + r, 3 J + c) for block index `block` (of column J).
+inline int find_value_position(const SolidDynamicsModel& m, int J, int block, int r, int c) {
+  const int deg = m.block_ptr[J + 1] - m.block_ptr[J];
+  return 9 * m.block_ptr[J] + 3 * c * deg + 3 * (block - m.block_ptr[J]) + r;
+}
+int find_block(const SolidDynamicsModel& m, int I, int J);  // I >= J
+
+// Pose of body b (identity for b < 0); throws bad_input when b is out of range of a non-empty X.
+Transform get_body_pose(const std::vector<Transform>& X_now_rest, int b);
+
+// calc_forces reusing `out` (its stiffness keeps the pattern between calls).
+void calc_forces_into(const SolidDynamicsModel& model, const Points3& P, const Points3& V,
+                      double activation, bool with_stiffness,
+                      const std::vector<Transform>& X_now_rest, ForceEvaluation& out);
+
+// Volume and gradient (3#P interleaved).
+double calc_volume_and_flat_gradient(const SolidDynamicsModel& m, const Points3& P, VecX* grad);
+
+}  // namespace fascicle::dynamics_detail

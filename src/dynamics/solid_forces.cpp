@@ -1,0 +1,285 @@
+// Potential forces of the solid and their stiffness (seed 000 §4.4–4.7): hyperelastic ground
+// substance and fibres by quadrature, springs, gravity, volume penalty, plane contact.
+#include "fascicle/bspline/volume.hpp"
+#include "fascicle/core/error.hpp"
+#include "fascicle/musculotendon/curves.hpp"
+#include "internal.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace fascicle {
+namespace dynamics_detail {
+
+Eigen::SparseMatrix<double> make_pattern_matrix(const SolidDynamicsModel& m) {
+  const int n = static_cast<int>(m.block_ptr.size()) - 1;
+  Eigen::SparseMatrix<double> K(3 * n, 3 * n);
+  const int nnz = 9 * m.block_ptr[n];
+  K.resizeNonZeros(nnz);
+  int* outer = K.outerIndexPtr();
+  int* inner = K.innerIndexPtr();
+  for (int J = 0; J < n; ++J) {
+    const int deg = m.block_ptr[J + 1] - m.block_ptr[J];
+    for (int c = 0; c < 3; ++c) {
+      const int start = 9 * m.block_ptr[J] + 3 * c * deg;
+      outer[3 * J + c] = start;
+      for (int k = 0; k < deg; ++k)
+        for (int r = 0; r < 3; ++r) inner[start + 3 * k + r] = 3 * m.block_row[m.block_ptr[J] + k] + r;
+    }
+  }
+  outer[3 * n] = nnz;
+  K.coeffs().setZero();
+  return K;
+}
+
+int find_block(const SolidDynamicsModel& m, int I, int J) {
+  const auto b = m.block_row.begin() + m.block_ptr[J], e = m.block_row.begin() + m.block_ptr[J + 1];
+  const auto it = std::lower_bound(b, e, I);
+  if (it == e || *it != I) throw_internal(fmt::format("no block ({}, {}) in the pattern", I, J));
+  return static_cast<int>(it - m.block_row.begin());
+}
+
+Transform get_body_pose(const std::vector<Transform>& X, int b) {
+  if (b < 0 || X.empty()) return Transform::Identity();
+  if (b >= static_cast<int>(X.size()))
+    throw_bad_input(fmt::format("solid dynamics: body {} has no pose ({} given)", b, X.size()),
+                    {.suggestion = "pass one X_now_rest per body referenced by the attachments"});
+  return X[b];
+}
+
+double calc_volume_and_flat_gradient(const SolidDynamicsModel& m, const Points3& P, VecX* grad) {
+  VolumeAndGradient vg;
+  if (m.volume_integrator) {
+    if (!grad) return m.volume_integrator->calc_volume(P);
+    vg = m.volume_integrator->calc(P);
+  } else {
+    BSplineSolid s = m.rest;
+    s.P = P;
+    vg = calc_volume_and_gradient(s);
+  }
+  if (grad) *grad = flatten_points(vg.gradient);
+  return vg.volume_m3;
+}
+
+namespace {
+
+// Stress and energy density of all material terms at one quadrature point.
+StressAndEnergy calc_material(const SolidDynamicsSpec& s, const QuadraturePoint& q, const Mat3& F,
+                              double activation, double fv) {
+  StressAndEnergy out;
+  if (s.hyperelastic) {
+    MooneyRivlinParameters g = s.ground;
+    if (q.tendon) {
+      g.c1_Pa *= s.tendon_stiffness_factor;
+      g.c2_Pa *= s.tendon_stiffness_factor;
+    }
+    out = calc_mooney_rivlin(g, F);
+    const StressAndEnergy fib = q.tendon ? calc_tendon_fibre(s.tendon_modulus_Pa, F, q.fibre_rest)
+                                         : calc_blemker_fibre(s.fibre, F, q.fibre_rest,
+                                                              activation, fv);
+    out.energy_density_Pa += fib.energy_density_Pa;
+    out.P += fib.P;
+  } else if (!q.tendon && activation > 0.0) {
+    // Contraction without a hyperelastic potential: the active fibre stress alone.
+    BlemkerFibreParameters f = s.fibre;
+    const Vec3 Fa = F * q.fibre_rest;
+    const double l = Fa.norm();
+    const double dWdl = f.sigma_max_Pa / f.lambda_opt * activation * calc_blemker_active(f, l) * fv;
+    out.P = (dWdl / l) * Fa * q.fibre_rest.transpose();
+  }
+  return out;
+}
+
+[[noreturn]] void throw_inverted(const SolidDynamicsModel& m, const QuadraturePoint& q, double J) {
+  throw_numerical(
+      fmt::format("solid '{}' inverted at material point ({:.4f}, {:.4f}, {:.4f}): det F = {:.3e}",
+                  m.rest.name, q.material[0], q.material[1], q.material[2], J),
+      {.object = m.rest.name,
+       .suggestion = "reduce the time step, raise the ground-substance stiffness or check the "
+                     "attachments' motion near that material location"});
+}
+
+}  // namespace
+
+void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Points3& V,
+                      double activation, bool with_stiffness, const std::vector<Transform>& X,
+                      ForceEvaluation& out) {
+  const int n = static_cast<int>(P.rows());
+  const SolidDynamicsSpec& s = m.spec;
+  out.force.setZero(3 * n);
+  out.energy_J = 0.0;
+  if (with_stiffness) {
+    if (out.stiffness.nonZeros() != 9 * m.block_ptr[n] || out.stiffness.rows() != 3 * n)
+      out.stiffness = make_pattern_matrix(m);
+    else
+      out.stiffness.coeffs().setZero();
+  }
+  double* K = with_stiffness ? out.stiffness.valuePtr() : nullptr;
+
+  // Gravity: generalised force ρ ∫ N_I g dX = m_I g (lumped row sums, exact).
+  for (int i = 0; i < n; ++i) {
+    out.force.segment<3>(3 * i) += m.lumped_mass[i] * s.gravity_m_s2;
+    out.energy_J -= m.lumped_mass[i] * s.gravity_m_s2.dot(P.row(i).transpose());
+  }
+
+  // Material terms by quadrature.
+  const bool any_material = s.hyperelastic || activation > 0.0;
+  const double vmax = s.max_fibre_strain_rate_1_s * s.fibre.lambda_opt;
+  std::array<Mat3, 9> dP;  // dP/dF_{kl}, k + 3 l
+  std::vector<Mat3> T;     // per support point and k: Σ_l dP/dF_kl g_b[l]
+  for (std::size_t qi = 0; any_material && qi < m.quadrature.size(); ++qi) {
+    const QuadraturePoint& q = m.quadrature[qi];
+    const int* idx = &m.support_index[q.first];
+    const Vec3* g = &m.support_g[q.first];
+    Mat3 F = Mat3::Zero();
+    for (int a = 0; a < q.count; ++a) F += P.row(idx[a]).transpose() * g[a].transpose();
+    const double J = F.determinant();
+    if (!(J > 0.0)) throw_inverted(m, q, J);
+    double fv = 1.0;
+    if (V.rows() == n && !q.tendon && activation > 0.0) {
+      Mat3 Fdot = Mat3::Zero();
+      for (int a = 0; a < q.count; ++a) Fdot += V.row(idx[a]).transpose() * g[a].transpose();
+      const Vec3 Fa = F * q.fibre_rest;
+      const double ldot = Fa.dot(Fdot * q.fibre_rest) / Fa.norm();
+      fv = degroote_force_velocity(ldot / vmax).value;
+    }
+    const StressAndEnergy se = calc_material(s, q, F, activation, fv);
+    out.energy_J += q.weight_m3 * se.energy_density_Pa;
+    for (int a = 0; a < q.count; ++a)
+      out.force.segment<3>(3 * idx[a]) -= q.weight_m3 * (se.P * g[a]);
+    if (!K) continue;
+    // Tangent dP/dF by central differences of the analytic stress (fv frozen over the step).
+    const double h = 1e-6 * std::max(1.0, F.norm());
+    for (int l = 0; l < 3; ++l)
+      for (int k = 0; k < 3; ++k) {
+        Mat3 Fp = F, Fm = F;
+        Fp(k, l) += h;
+        Fm(k, l) -= h;
+        dP[k + 3 * l] = (calc_material(s, q, Fp, activation, fv).P -
+                         calc_material(s, q, Fm, activation, fv).P) / (2.0 * h);
+      }
+    // K_ab(i,k) = w Σ_jl g_a[j] dP_ij/dF_kl g_b[l]: T_bk = w Σ_l dP/dF_kl g_b[l] (3x3 in i,j),
+    // then column k of block (a,b) is T_bk g_a.
+    T.resize(static_cast<std::size_t>(3 * q.count));
+    for (int b = 0; b < q.count; ++b)
+      for (int k = 0; k < 3; ++k)
+        T[3 * b + k] = q.weight_m3 * (dP[k] * g[b][0] + dP[k + 3] * g[b][1] + dP[k + 6] * g[b][2]);
+    for (int p = m.pair_first[qi]; p < m.pair_first[qi + 1]; ++p) {
+      const auto& pr = m.pairs[p];
+      const int Jn = idx[pr.b];
+      for (int k = 0; k < 3; ++k) {
+        const Vec3 col = T[3 * pr.b + k] * g[pr.a];
+        const int pos = find_value_position(m, Jn, pr.block, 0, k);
+        K[pos] += col[0];
+        K[pos + 1] += col[1];
+        K[pos + 2] += col[2];
+      }
+    }
+  }
+
+  // Springs in material coordinates: E = k/2 (|d| − L)^2.
+  for (const auto& sp : m.springs) {
+    const Vec3 d = (P.row(sp.b) - P.row(sp.a)).transpose();
+    const double L = d.norm();
+    if (!(L > 0.0)) continue;
+    const Vec3 u = d / L;
+    const double ext = L - sp.rest_length_m;
+    out.energy_J += 0.5 * sp.stiffness_N_m * ext * ext;
+    out.force.segment<3>(3 * sp.a) += sp.stiffness_N_m * ext * u;
+    out.force.segment<3>(3 * sp.b) -= sp.stiffness_N_m * ext * u;
+    if (!K) continue;
+    // Hessian block, with the geometric term clamped at >= 0 so it stays positive semi-definite.
+    const Mat3 Kb = sp.stiffness_N_m *
+                    (std::max(0.0, 1.0 - sp.rest_length_m / L) * Mat3::Identity() +
+                     std::min(1.0, sp.rest_length_m / L) * u * u.transpose());
+    const int hi = std::max(sp.a, sp.b), lo = std::min(sp.a, sp.b);
+    const int bd_hi = find_block(m, hi, hi), bd_lo = find_block(m, lo, lo), off = find_block(m, hi, lo);
+    for (int c = 0; c < 3; ++c)
+      for (int r = 0; r < 3; ++r) {
+        K[find_value_position(m, hi, bd_hi, r, c)] += Kb(r, c);
+        K[find_value_position(m, lo, bd_lo, r, c)] += Kb(r, c);
+        K[find_value_position(m, lo, off, r, c)] -= Kb(r, c);
+      }
+  }
+
+  // Volume (exact gradient from the bspline module) and its penalty.
+  const bool need_gradient = s.volume != VolumeMethod::none;
+  out.volume_m3 = calc_volume_and_flat_gradient(m, P, need_gradient ? &out.volume_gradient : nullptr);
+  if (s.volume == VolumeMethod::penalty) {
+    const double e = out.volume_m3 - m.rest_volume_m3;
+    out.energy_J += 0.5 * s.volume_stiffness_Pa * e * e / m.rest_volume_m3;
+    out.force -= (s.volume_stiffness_Pa * e / m.rest_volume_m3) * out.volume_gradient;
+  }
+
+  // Point-on-plane contact (one-sided, push only) at the boundary samples.
+  for (const auto& plane : s.contact_planes) {
+    const Transform X_b = get_body_pose(X, plane.body);
+    const Vec3 p0 = X_b * plane.point_rest;
+    const Vec3 nrm = (X_b.linear() * plane.normal_rest).normalized();
+    const double k = m.contact_stiffness_N_m;
+    for (const auto& cs : m.contact_samples) {
+      Vec3 x = Vec3::Zero();
+      for (std::size_t a = 0; a < cs.index.size(); ++a) x += cs.N[a] * P.row(cs.index[a]).transpose();
+      const double gap = nrm.dot(x - p0);
+      if (gap >= 0.0) continue;
+      out.energy_J += 0.5 * k * gap * gap;
+      for (std::size_t a = 0; a < cs.index.size(); ++a)
+        out.force.segment<3>(3 * cs.index[a]) -= k * gap * cs.N[a] * nrm;
+      if (!K) continue;
+      const Mat3 nn = k * nrm * nrm.transpose();
+      for (std::size_t a = 0; a < cs.index.size(); ++a)
+        for (std::size_t b = 0; b < cs.index.size(); ++b) {
+          const int I = cs.index[a], Jn = cs.index[b];
+          if (I < Jn) continue;
+          const int blk = find_block(m, I, Jn);
+          for (int c = 0; c < 3; ++c)
+            for (int r = 0; r < 3; ++r)
+              K[find_value_position(m, Jn, blk, r, c)] += cs.N[a] * cs.N[b] * nn(r, c);
+        }
+    }
+  }
+}
+
+}  // namespace dynamics_detail
+
+ForceEvaluation calc_forces(const SolidDynamicsModel& model, const Points3& P, const Points3& V,
+                            double activation, bool with_stiffness,
+                            const std::vector<Transform>& X_now_rest) {
+  ForceEvaluation out;
+  dynamics_detail::calc_forces_into(model, P, V, activation, with_stiffness, X_now_rest, out);
+  return out;
+}
+
+VecX calc_internal_forces(const SolidDynamicsModel& m, const Points3& P, double activation) {
+  VecX f = VecX::Zero(3 * P.rows());
+  for (const QuadraturePoint& q : m.quadrature) {
+    const int* idx = &m.support_index[q.first];
+    const Vec3* g = &m.support_g[q.first];
+    Mat3 F = Mat3::Zero();
+    for (int a = 0; a < q.count; ++a) F += P.row(idx[a]).transpose() * g[a].transpose();
+    SolidDynamicsSpec s = m.spec;
+    StressAndEnergy se;
+    if (s.hyperelastic) {
+      MooneyRivlinParameters gr = s.ground;
+      if (q.tendon) gr.c1_Pa *= s.tendon_stiffness_factor, gr.c2_Pa *= s.tendon_stiffness_factor;
+      se = calc_mooney_rivlin(gr, F);
+    }
+    if (!q.tendon) se.P += calc_blemker_fibre(s.fibre, F, q.fibre_rest, activation, 1.0).P;
+    for (int a = 0; a < q.count; ++a) f.segment<3>(3 * idx[a]) -= q.weight_m3 * (se.P * g[a]);
+  }
+  return f;
+}
+
+std::optional<Vec3> find_inverted_point(const SolidDynamicsModel& m, const Points3& P) {
+  for (const QuadraturePoint& q : m.quadrature) {
+    Mat3 F = Mat3::Zero();
+    for (int a = 0; a < q.count; ++a)
+      F += P.row(m.support_index[q.first + a]).transpose() * m.support_g[q.first + a].transpose();
+    if (!(F.determinant() > 0.0)) return q.material;
+  }
+  return std::nullopt;
+}
+
+}  // namespace fascicle

@@ -1,0 +1,413 @@
+// Time integration of the solid (seed 000 §4.1): symplectic Euler with a stable sub-step from the
+// largest frequency, backward Euler by Newton iterations on the incremental potential with a sparse
+// LDLᵀ solve (volume penalty as a rank-one Sherman–Morrison update), a quasi-static mode, step
+// halving on failure and the exact volume projection per step (§4.4).
+#include "fascicle/core/error.hpp"
+#include "internal.hpp"
+
+#include <Eigen/SparseCholesky>
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace fascicle {
+
+using dynamics_detail::calc_forces_into;
+using dynamics_detail::calc_volume_and_flat_gradient;
+using dynamics_detail::find_block;
+using dynamics_detail::find_value_position;
+using dynamics_detail::get_body_pose;
+
+struct SolidDynamicsSolver::Workspace {
+  ForceEvaluation fe;
+  Eigen::SparseMatrix<double> A;     // system matrix, lower block pattern
+  Eigen::SparseMatrix<double> D;     // Rayleigh damping, same pattern (values), may be empty
+  VecX inertia_values;               // M in the pattern's value layout
+  std::vector<int> zero_positions;   // entries coupling fixed dofs
+  std::vector<int> diag_positions;   // diagonal entries of fixed dofs
+  std::vector<char> fixed_dof;
+  VecX inv_mass;                     // per dof, 0 on fixed
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower> ldlt;
+  bool analysed = false;
+  double size_m = 1.0;
+};
+
+namespace {
+
+// y = M x for interleaved x (M: #P x #P node matrix).
+VecX apply_mass(const Eigen::SparseMatrix<double>& M, const VecX& x) {
+  const Eigen::Index n = M.rows();
+  Eigen::Map<const Eigen::Matrix<double, 3, Eigen::Dynamic>> X(x.data(), 3, n);
+  VecX y(3 * n);
+  Eigen::Map<Eigen::Matrix<double, 3, Eigen::Dynamic>> Y(y.data(), 3, n);
+  Y = X * M;  // M symmetric
+  return y;
+}
+
+VecX apply_lower(const Eigen::SparseMatrix<double>& A, const VecX& x) {
+  return A.selfadjointView<Eigen::Lower>() * x;
+}
+
+}  // namespace
+
+SolidDynamicsSolver::SolidDynamicsSolver(std::shared_ptr<const SolidDynamicsModel> model,
+                                         SolverOptions options)
+    : model_(std::move(model)), options_(options), ws_(std::make_unique<Workspace>()) {
+  if (!model_) throw_internal("SolidDynamicsSolver: null model");
+  const SolidDynamicsModel& m = *model_;
+  const int n = m.rest.num_control_points();
+  state_.P = m.rest.P;
+  state_.V = Points3::Zero(n, 3);
+  Workspace& w = *ws_;
+  w.A = dynamics_detail::make_pattern_matrix(m);
+  w.inertia_values = VecX::Zero(w.A.nonZeros());
+  for (int J = 0; J < n; ++J)
+    for (Eigen::SparseMatrix<double>::InnerIterator it(m.mass_matrix, J); it; ++it) {
+      const int I = static_cast<int>(it.row());
+      if (I < J) continue;
+      const int blk = find_block(m, I, J);
+      for (int r = 0; r < 3; ++r) w.inertia_values[find_value_position(m, J, blk, r, r)] += it.value();
+    }
+  // Fixed dofs: rows and columns of the system become identity.
+  w.fixed_dof.assign(3 * n, 0);
+  w.inv_mass = VecX::Zero(3 * n);
+  for (int i = 0; i < n; ++i)
+    for (int c = 0; c < 3; ++c) {
+      w.fixed_dof[3 * i + c] = m.fixed[i];
+      w.inv_mass[3 * i + c] = m.fixed[i] ? 0.0 : 1.0 / m.lumped_mass[i];
+    }
+  for (int col = 0; col < w.A.outerSize(); ++col)
+    for (int p = w.A.outerIndexPtr()[col]; p < w.A.outerIndexPtr()[col + 1]; ++p) {
+      const int row = w.A.innerIndexPtr()[p];
+      if (!w.fixed_dof[row] && !w.fixed_dof[col]) continue;
+      (row == col ? w.diag_positions : w.zero_positions).push_back(p);
+    }
+  // Rayleigh damping D = α M + β K(rest).
+  if (m.spec.rayleigh_alpha_1_s > 0.0 || m.spec.rayleigh_beta_s > 0.0) {
+    w.D = w.A;
+    VecX vals = m.spec.rayleigh_alpha_1_s * w.inertia_values;
+    if (m.spec.rayleigh_beta_s > 0.0) {
+      ForceEvaluation k0;
+      calc_forces_into(m, m.rest.P, {}, 0.0, true, {}, k0);
+      vals += m.spec.rayleigh_beta_s * Eigen::Map<const VecX>(k0.stiffness.valuePtr(), vals.size());
+    }
+    Eigen::Map<VecX>(w.D.valuePtr(), vals.size()) = vals;
+  }
+  const Vec3 lo = m.rest.P.colwise().minCoeff(), hi = m.rest.P.colwise().maxCoeff();
+  w.size_m = std::max(1e-6, (hi - lo).norm());
+}
+
+SolidDynamicsSolver::~SolidDynamicsSolver() = default;
+SolidDynamicsSolver::SolidDynamicsSolver(SolidDynamicsSolver&&) noexcept = default;
+SolidDynamicsSolver& SolidDynamicsSolver::operator=(SolidDynamicsSolver&&) noexcept = default;
+
+void SolidDynamicsSolver::set_state(SolidState s) {
+  const int n = model_->rest.num_control_points();
+  if (s.P.rows() != n || s.V.rows() != n)
+    throw_bad_input(fmt::format("solid state has {} points, the model {}", s.P.rows(), n));
+  state_ = std::move(s);
+  initial_energy_ = NAN;
+}
+
+void SolidDynamicsSolver::project_volume(SolidState& s, const SolidState& before, double dt,
+                                         StepReport& r) const {
+  const SolidDynamicsModel& m = *model_;
+  if (m.spec.volume != VolumeMethod::exact) return;
+  VecX x = flatten_points(s.P);
+  const VecX x0 = x;
+  VecX g;
+  for (int it = 0; it < 30; ++it) {
+    const double V = calc_volume_and_flat_gradient(m, unflatten_points(x), &g);
+    const double err = V - m.rest_volume_m3;
+    if (std::abs(err) <= m.spec.volume_tolerance * m.rest_volume_m3) break;
+    const VecX Wg = ws_->inv_mass.cwiseProduct(g);
+    const double denom = g.dot(Wg);
+    if (!(denom > 0.0)) break;
+    x -= (err / denom) * Wg;
+    r.volume_projection_m3 += std::abs(err);
+  }
+  s.P = unflatten_points(x);
+  // The projection is part of the step: velocities follow the corrected positions.
+  if (dt > 0.0 && options_.integrator != Integrator::quasi_static)
+    s.V += unflatten_points((x - x0) / dt);
+  (void)before;
+}
+
+StepReport SolidDynamicsSolver::step(double dt, const StepInputs& in) {
+  const SolidDynamicsModel& m = *model_;
+  if (!(dt > 0.0) || !std::isfinite(dt))
+    throw_bad_input(fmt::format("solid dynamics: time step {} s is not positive", dt));
+  const int n = m.rest.num_control_points();
+  if (in.external_forces.rows() != 0 && in.external_forces.rows() != n)
+    throw_bad_input(fmt::format("external forces have {} rows, the solid {} control points",
+                                in.external_forces.rows(), n));
+  if (std::isnan(initial_energy_)) initial_energy_ = calc_energies(m, state_, in.X_now_rest).total();
+
+  StepReport total;
+  double remaining = dt, h = dt;
+  int halvings = 0;
+  while (remaining > 1e-12 * dt) {
+    h = std::min(h, remaining);
+    SolidState trial = state_;
+    StepReport r;
+    try {
+      // Attachment targets are interpolated linearly in time across sub-intervals.
+      r = try_step(h, in, trial);
+    } catch (const Error& e) {
+      if (e.kind() == ErrorKind::numerical && halvings < options_.max_step_halvings) {
+        h *= 0.5;
+        ++halvings;
+        continue;
+      }
+      throw_numerical(fmt::format("solid '{}' at t = {:.6g} s: {} (after {} step halvings; the "
+                                  "last good state is kept)",
+                                  m.rest.name, state_.time_s, e.message(), halvings),
+                      e.context());
+    }
+    // Divergence checks: NaN, energy blow-up.
+    if (!trial.P.allFinite() || !trial.V.allFinite()) {
+      if (halvings < options_.max_step_halvings) {
+        h *= 0.5;
+        ++halvings;
+        continue;
+      }
+      throw_numerical(fmt::format("solid '{}' diverged (NaN) at t = {:.6g} s; the last good state "
+                                  "is kept", m.rest.name, state_.time_s),
+                      {.object = m.rest.name, .suggestion = "reduce the time step or use backward Euler"});
+    }
+    const double E = calc_energies(m, trial, in.X_now_rest).total();
+    const double bound = initial_energy_ + options_.energy_blowup_factor *
+                                               (std::abs(initial_energy_) + m.mass_kg * 1.0);
+    if (!std::isfinite(E) || E > bound) {
+      throw_numerical(
+          fmt::format("solid '{}': energy blow-up at t = {:.6g} s ({:.4g} J, started at {:.4g} J); "
+                      "the last good state is kept", m.rest.name, state_.time_s + h, E, initial_energy_),
+          {.object = m.rest.name,
+           .suggestion = "reduce the time step (explicit integration is only stable below 2/w_max) "
+                         "or use backward Euler"});
+    }
+    state_ = std::move(trial);
+    remaining -= h;
+    total.substeps += r.substeps;
+    total.newton_iterations += r.newton_iterations;
+    total.factorisations += r.factorisations;
+    total.residual = r.residual;
+    total.volume_projection_m3 += r.volume_projection_m3;
+  }
+  total.halvings = halvings;
+  return total;
+}
+
+StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidState& s) {
+  const SolidDynamicsModel& m = *model_;
+  const SolidDynamicsSpec& sp = m.spec;
+  Workspace& w = *ws_;
+  const int n = m.rest.num_control_points();
+  StepReport rep;
+
+  // Activation dynamics (OpenSim first-order model), sub-stepped at <= 1 ms.
+  const double u = std::clamp(in.excitation, 0.0, 1.0);
+  double a = s.activation;
+  const int na = std::max(1, static_cast<int>(std::ceil(h / 1e-3)));
+  for (int i = 0; i < na; ++i)
+    a = std::clamp(a + (h / na) * calc_activation_rate_opensim(sp.activation, a, u), 0.0, 1.0);
+
+  // Attachment targets at the end of this sub-interval.
+  const VecX x_n = flatten_points(s.P), v_n = flatten_points(s.V);
+  VecX target = x_n;
+  for (const auto& att : sp.attachments) {
+    const Transform X = get_body_pose(in.X_now_rest, att.body);
+    for (int i : att.control_points) target.segment<3>(3 * i) = X * m.rest.P.row(i).transpose();
+  }
+  const VecX f_ext = in.external_forces.rows() == n ? flatten_points(in.external_forces)
+                                                     : VecX::Zero(3 * n);
+  const double V0 = m.rest_volume_m3;
+  const bool has_D = w.D.nonZeros() > 0;
+
+  if (options_.integrator == Integrator::symplectic_euler) {
+    const double wmax = calc_max_frequency(m, s.P, a);
+    const double hmax = options_.explicit_safety * 2.0 / std::max(wmax, 1e-12);
+    const int ns = std::max(1, static_cast<int>(std::ceil(h / hmax)));
+    const double hs = h / ns;
+    VecX x = x_n, v = v_n;
+    for (int k = 0; k < ns; ++k) {
+      const Points3 P = unflatten_points(x), V = unflatten_points(v);
+      calc_forces_into(m, P, V, a, false, in.X_now_rest, w.fe);
+      VecX f = w.fe.force + f_ext;
+      if (has_D) f -= apply_lower(w.D, v);
+      if (sp.volume == VolumeMethod::penalty && sp.volume_damping_Pa_s > 0.0)
+        f -= (sp.volume_damping_Pa_s * w.fe.volume_gradient.dot(v) / V0) * w.fe.volume_gradient;
+      v += hs * w.inv_mass.cwiseProduct(f);
+      const double frac = static_cast<double>(k + 1) / ns;
+      for (int i = 0; i < 3 * n; ++i) {
+        if (!w.fixed_dof[i]) continue;
+        const double xt = x_n[i] + frac * (target[i] - x_n[i]);
+        v[i] = (xt - x[i]) / hs;
+      }
+      x += hs * v;
+      s.P = unflatten_points(x);
+      s.V = unflatten_points(v);
+      project_volume(s, s, hs, rep);
+      x = flatten_points(s.P);
+      v = flatten_points(s.V);
+    }
+    s.activation = a;
+    s.time_s += h;
+    rep.substeps = ns;
+    return rep;
+  }
+
+  // Backward Euler / quasi-static: Newton on r(x) = M(x − x̃)/h² + D(x − x_n)/h − f(x) − f_ext.
+  const bool quasi = options_.integrator == Integrator::quasi_static;
+  const double inertia = quasi ? 1e-6 : 1.0;  // quasi-static: a tiny mass regularises free modes
+  const VecX x_tilde = quasi ? x_n : VecX(x_n + h * v_n);
+  VecX x = x_tilde;
+  for (int i = 0; i < 3 * n; ++i)
+    if (w.fixed_dof[i]) x[i] = target[i];
+  const Points3 V_start = s.V;  // force–velocity factor frozen over the step
+  double c_rank = 0.0;          // Gauss–Newton rank-one term of the volume penalty
+  if (sp.volume == VolumeMethod::penalty)
+    c_rank = sp.volume_stiffness_Pa / V0 + (quasi ? 0.0 : sp.volume_damping_Pa_s / (V0 * h));
+  auto merit = [&](const VecX& xx, const ForceEvaluation& fe) {
+    const VecX dx = xx - x_tilde;
+    double phi = 0.5 * inertia / (h * h) * dx.dot(apply_mass(m.mass_matrix, dx)) + fe.energy_J -
+                 f_ext.dot(xx);
+    if (has_D && !quasi) {
+      const VecX d = xx - x_n;
+      phi += 0.5 / h * d.dot(apply_lower(w.D, d));
+    }
+    return phi;
+  };
+  const double tol = options_.newton_tolerance * w.size_m;
+  calc_forces_into(m, unflatten_points(x), V_start, a, true, in.X_now_rest, w.fe);
+  bool factored = false;
+  bool converged = false;
+  double phi = merit(x, w.fe);
+  for (int it = 0; it < options_.max_newton_iterations; ++it) {
+    ++rep.newton_iterations;
+    const VecX d = x - x_n;
+    VecX r = inertia / (h * h) * apply_mass(m.mass_matrix, x - x_tilde) - w.fe.force - f_ext;
+    if (has_D && !quasi) r += apply_lower(w.D, d) / h;
+    VecX g;
+    if (c_rank > 0.0) {
+      g = w.fe.volume_gradient;
+      for (int i = 0; i < 3 * n; ++i)
+        if (w.fixed_dof[i]) g[i] = 0.0;
+      if (!quasi && sp.volume_damping_Pa_s > 0.0)
+        r += (sp.volume_damping_Pa_s * g.dot(d) / (V0 * h)) * g;
+    }
+    for (int i = 0; i < 3 * n; ++i)
+      if (w.fixed_dof[i]) r[i] = 0.0;
+    rep.residual = r.lpNorm<Eigen::Infinity>();
+    if (!factored || options_.refresh_stiffness) {
+      if (it > 0) calc_forces_into(m, unflatten_points(x), V_start, a, true, in.X_now_rest, w.fe);
+      Eigen::Map<VecX> Av(w.A.valuePtr(), w.A.nonZeros());
+      Av = Eigen::Map<const VecX>(w.fe.stiffness.valuePtr(), Av.size()) +
+           (inertia / (h * h)) * w.inertia_values;
+      if (has_D && !quasi) Av += Eigen::Map<const VecX>(w.D.valuePtr(), Av.size()) / h;
+      for (int p : w.zero_positions) Av[p] = 0.0;
+      for (int p : w.diag_positions) Av[p] = 1.0;
+      if (!w.analysed) {
+        w.ldlt.analyzePattern(w.A);
+        w.analysed = true;
+      }
+      w.ldlt.factorize(w.A);
+      ++rep.factorisations;
+      if (w.ldlt.info() != Eigen::Success)
+        throw_numerical("the backward-Euler system could not be factorised");
+      factored = true;
+    }
+    VecX y = w.ldlt.solve(-r);
+    if (c_rank > 0.0) {
+      const VecX z = w.ldlt.solve(g);
+      y -= (c_rank * g.dot(y) / (1.0 + c_rank * g.dot(z))) * z;
+    }
+    if (!y.allFinite()) throw_numerical("the Newton step is not finite");
+    // Backtracking line search on the incremental potential; inverted trials are rejected.
+    double alpha = 1.0;
+    bool accepted = false;
+    ForceEvaluation trial_fe;
+    for (int ls = 0; ls < 10; ++ls, alpha *= 0.5) {
+      const VecX xt = x + alpha * y;
+      try {
+        calc_forces_into(m, unflatten_points(xt), V_start, a, false, in.X_now_rest, trial_fe);
+      } catch (const Error& e) {
+        if (e.kind() == ErrorKind::numerical) continue;
+        throw;
+      }
+      const double phi_t = merit(xt, trial_fe);
+      // The volume damping and penalty rank-one parts are not all in the merit: accept small
+      // increases relative to its size.
+      if (phi_t <= phi + 1e-9 * std::abs(phi) + 1e-12 || alpha * y.lpNorm<Eigen::Infinity>() < tol) {
+        x = xt;
+        phi = phi_t;
+        std::swap(w.fe.force, trial_fe.force);
+        w.fe.energy_J = trial_fe.energy_J;
+        w.fe.volume_m3 = trial_fe.volume_m3;
+        std::swap(w.fe.volume_gradient, trial_fe.volume_gradient);
+        accepted = true;
+        break;
+      }
+    }
+    if (!accepted) {
+      // No decrease along the step: inverted everywhere along it, or a poor modified-Newton
+      // direction. A smaller time step usually cures both.
+      auto inv = find_inverted_point(m, unflatten_points(x + y));
+      throw_numerical(inv ? fmt::format("Newton step inverts the solid at material point ({:.4f}, "
+                                        "{:.4f}, {:.4f})", (*inv)[0], (*inv)[1], (*inv)[2])
+                          : std::string("Newton line search failed"));
+    }
+    if (alpha * y.lpNorm<Eigen::Infinity>() < tol) {
+      converged = true;
+      break;
+    }
+  }
+  if (!converged)
+    throw_numerical(fmt::format("Newton did not converge in {} iterations (|r| = {:.3e} N)",
+                                options_.max_newton_iterations, rep.residual));
+  s.P = unflatten_points(x);
+  s.V = quasi ? Points3::Zero(n, 3) : unflatten_points((x - x_n) / h);
+  project_volume(s, s, h, rep);
+  s.activation = a;
+  s.time_s += h;
+  rep.substeps = 1;
+  return rep;
+}
+
+SolidMetrics SolidDynamicsSolver::calc_metrics(const StepInputs& in) const {
+  return fascicle::calc_metrics(*model_, state_, in.X_now_rest);
+}
+
+double calc_max_frequency(const SolidDynamicsModel& m, const Points3& P, double activation) {
+  ForceEvaluation fe;
+  calc_forces_into(m, P, {}, activation, true, {}, fe);
+  const int n = static_cast<int>(P.rows());
+  VecX s(3 * n);  // M^{-1/2}, zero on fixed dofs
+  for (int i = 0; i < n; ++i)
+    for (int c = 0; c < 3; ++c) s[3 * i + c] = m.fixed[i] ? 0.0 : 1.0 / std::sqrt(m.lumped_mass[i]);
+  double cr = 0.0;
+  VecX g;
+  if (m.spec.volume == VolumeMethod::penalty) {
+    cr = m.spec.volume_stiffness_Pa / m.rest_volume_m3;
+    g = fe.volume_gradient;
+  }
+  VecX x = VecX::Ones(3 * n).cwiseProduct(s);
+  for (int i = 0; i < 3 * n; i += 2) x[i] *= -1.0;  // break symmetry
+  double lambda = 0.0;
+  for (int it = 0; it < 60; ++it) {
+    const double nx = x.norm();
+    if (!(nx > 0.0)) break;
+    x /= nx;
+    VecX y = s.cwiseProduct(x);
+    VecX z = fe.stiffness.selfadjointView<Eigen::Lower>() * y;
+    if (cr > 0.0) z += cr * g.dot(y) * g;
+    z = s.cwiseProduct(z);
+    lambda = x.dot(z);
+    x = z;
+  }
+  // Also the springs' and contacts' contributions are in fe.stiffness.
+  return std::sqrt(std::max(lambda, 0.0));
+}
+
+}  // namespace fascicle
