@@ -1,0 +1,204 @@
+// Fibres-first muscle deformation (Kohout et al., seed 002 section 5): every muscle is a bundle of
+// rest-pose fibres sampled by particles joined by springs (stiffer along the fibres than across),
+// its fibre ends fixed to bones; per frame the particles settle to the equilibrium of the springs
+// with each muscle's volume held, particles kept out of bones and away from other muscles.
+//
+// Three pieces (fascicle style, like surface_first.hpp):
+//   - FibresFirstModel: built once from the rest pose of all muscles of a scene by
+//     build_fibres_first_model(); immutable ("model"). One model per scene, because muscle-muscle
+//     separation couples the muscles.
+//   - FibresFirstSolver: prefactorised per-muscle systems, warm start, active contacts ("state").
+//   - calc_fibres_first_frame(): one-off solve of a single frame.
+// Method, equations, stopping criterion and measured performance: docs/representations.md.
+// Units: metres, kilograms, seconds, newtons. Positions are in the world (ground) frame.
+#pragma once
+
+#include "fascicle/geometry/mesh_query.hpp"
+
+#include <limits>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace fascicle {
+
+// One muscle's rest pose: fibre polylines (world, metres) ordered from origin to insertion, each
+// with >= 2 points (e.g. fascicle::FibreSet::fibres from the fibres module), and its bones.
+struct FibreBundleSpec {
+  std::string name;             // used in messages
+  std::vector<Points3> fibres;  // rest fibres, #points x 3 each
+  int origin_bone = -1;         // index into the model's bones; first particles follow it
+  int insertion_bone = -1;      // index into the model's bones; last particles follow it
+  // Rest volume used for the particle masses (m^3); <= 0: the volume of the reconstructed surface.
+  double volume_m3 = 0.0;
+};
+
+struct FibresFirstOptions {
+  int particles_per_fibre = 15;  // uniform in arc length along every fibre (>= 2)
+  int cross_neighbours = 4;      // k nearest fibres in the rest cross-section (symmetrised)
+  // Spring constants (N/m) of one spring along a fibre, across fibres, and of the bending spring
+  // joining particles i-1 and i+1 of a fibre (0: none). Along > across gives the anisotropy.
+  double along_stiffness = 400.0;
+  double across_stiffness = 100.0;
+  double bending_stiffness = 40.0;
+  double density_kg_per_m3 = 1060.0;  // muscle density (Mendez and Keys 1960)
+  // Hold each muscle's enclosed volume (of its reconstructed surface) at its rest value by a
+  // Lagrange multiplier. Needs >= 3 fibres not all in one plane.
+  bool hold_volume = true;
+  double volume_tolerance = 1e-3;    // |V - V0| / V0 reached by the final volume iterations
+  double max_volume_error = 5e-3;    // a frame above this throws fascicle::Error (numerical)
+  int max_volume_iterations = 8;     // final Gauss-Newton steps on the volume constraint
+  // Fixing particles to bones. A fibre's first (last) particle is fixed to the origin (insertion)
+  // bone when it lies within end_attachment_distance_m of that bone's surface (infinity: always,
+  // a rigid-tendon model for bellies without tendons). Any other particle within
+  // bone_attachment_distance_m of its muscle's origin or insertion bone is fixed to the nearer one
+  // (seed 002's rule; 0: off).
+  double end_attachment_distance_m = std::numeric_limits<double>::infinity();
+  double bone_attachment_distance_m = 0.0;
+  // Initial guess: free particles move by a blend of the origin and insertion bones' motions
+  // since the last frame, weight w(t) = a t^2 - (a+1) t + 1 of the origin bone at normalised fibre
+  // position t (Modenese and Kohout 2020); a in [-1, 1] keeps w monotone.
+  double blend_a = 0.0;
+  // Contacts. A particle that enters a bone (deeper than it was at rest) is held at the bone
+  // surface plus bone_margin_m; particles of different muscles are kept at least
+  // min(muscle_margin_m, their rest distance) apart.
+  double bone_margin_m = 2e-4;
+  double muscle_margin_m = 2e-3;
+  double contact_weight = 100.0;  // contact spring = this x along_stiffness
+  int max_contact_rounds = 4;     // solve -> detect new contacts -> solve rounds per frame
+  // Local/global iterations (projective dynamics) per contact round; stop when the largest
+  // particle displacement of an iteration is below step_tolerance x the mean rest spring length.
+  int max_iterations = 20;
+  double step_tolerance = 1e-3;
+  // Dynamics (off: quasi-static equilibrium). Backward-Euler time integration of the particles
+  // with velocity damping (1/s); the time step comes with each frame (default_time_step_s if 0).
+  bool dynamic = false;
+  double damping_per_s = 5.0;
+  double default_time_step_s = 1.0 / 60.0;
+};
+
+// Where a particle is held.
+enum class ParticleRole : unsigned char { free, fixed };
+
+// One muscle of the model: particles (rows of the model's particle arrays) and its springs.
+struct FibreBundle {
+  std::string name;
+  int origin_bone = -1, insertion_bone = -1;
+  int first_particle = 0;   // particles [first_particle, first_particle + num_particles)
+  int num_particles = 0;
+  int num_fibres = 0;       // particle (f, i) = first_particle + f * particles_per_fibre + i
+  std::vector<int> free;    // model particle indices of its free particles (sorted)
+  std::vector<int> free_index;  // per muscle particle: index into `free`, or -1
+  std::vector<int> boundary_fibres;  // the rest cross-section's convex hull, counter-clockwise
+  // Display surface: vertices = boundary-fibre particles (in surface_particles order) followed by
+  // the two cap centres (means of the first and last ring); triangles fixed, outward.
+  std::vector<int> surface_particles;  // model particle indices
+  Triangles surface_triangles;
+  double rest_volume_m3 = 0.0;    // enclosed by the rest display surface
+  double particle_mass_kg = 0.0;
+  double mean_spring_length_m = 0.0;
+};
+
+// A spring between particles a and b (model indices) of one muscle.
+struct Spring {
+  int a = -1, b = -1;
+  double rest_length_m = 0.0;
+  double stiffness = 0.0;  // N/m
+};
+
+struct FibresFirstModel {
+  FibresFirstOptions options;
+  std::vector<const MeshQuery*> bones;  // rest pose, world frame; not owned
+  std::vector<FibreBundle> muscles;
+  Points3 rest;                          // all particles, #N x 3
+  std::vector<int> muscle_of;            // per particle
+  std::vector<double> fibre_t;           // per particle: normalised position along its fibre
+  std::vector<ParticleRole> role;        // per particle
+  std::vector<int> fixed_bone;           // per particle: bone it follows (fixed), or -1
+  std::vector<Spring> springs;           // grouped by muscle
+  std::vector<int> first_spring;         // per muscle, plus one past the end
+  // Per bone, per particle: distance to the bone surface at rest when outside it (culls contact
+  // tests exactly), and depth inside it at rest (0 outside; only penetration beyond it counts).
+  std::vector<VecX> rest_bone_clearance;
+  std::vector<VecX> rest_bone_depth;
+
+  int num_particles() const { return static_cast<int>(rest.rows()); }
+  int num_bones() const { return static_cast<int>(bones.size()); }
+};
+
+// Builds the model. `bones` are rest-pose meshes in the world frame; they must outlive the model
+// and its solvers. Throws fascicle::Error (bad input, naming the muscle) for a muscle without
+// fibres, a fibre with < 2 points or non-finite or zero length, a bone index out of range, a
+// muscle with no particle fixed to a bone or a part of it connected to none; (usage) for invalid
+// options (stiffness <= 0, particles_per_fibre < 2, ...).
+FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& muscles,
+                                          const std::vector<const MeshQuery*>& bones,
+                                          const FibresFirstOptions& options = {});
+
+// One frame's input.
+struct FibresFirstInput {
+  std::vector<Transform> bone_motions;  // per bone, X_now_rest (empty: all bones at rest)
+  double time_step_s = 0.0;             // dynamic mode only (0: options.default_time_step_s)
+};
+
+// Per muscle results of a frame (NaN until solved).
+struct FibreBundleFrame {
+  Points3 particles;  // #particles x 3 (fibre-major: fibre f, particle i at row f * P + i)
+  Points3 surface_vertices;  // display surface vertices; triangles: bundle.surface_triangles
+  double volume_m3 = std::numeric_limits<double>::quiet_NaN();
+  double relative_volume_error = std::numeric_limits<double>::quiet_NaN();  // |V - V0| / V0
+  double max_bone_penetration_m = 0.0;   // deepest particle inside a bone beyond its rest depth
+  double max_muscle_overlap_m = 0.0;     // largest shortfall of a pair distance below its minimum
+  int bone_contacts = 0, muscle_contacts = 0;
+};
+
+struct FibresFirstInfo {
+  int frame = -1;                 // frames solved so far - 1
+  int iterations = 0;             // local/global iterations (all rounds)
+  int contact_rounds = 0;
+  int factorisations = 0;         // muscle systems (re)factorised this frame
+  int volume_iterations = 0;      // final volume steps
+  double residual = std::numeric_limits<double>::quiet_NaN();  // last step / mean spring length
+};
+
+// The per-scene solver. Holds one prefactorised sparse system per muscle (refactorised only for
+// muscles whose contact set changed), the previous frame (warm start, velocities) and contacts.
+class FibresFirstSolver {
+ public:
+  explicit FibresFirstSolver(const FibresFirstModel& model);  // model must outlive the solver
+  ~FibresFirstSolver();
+  FibresFirstSolver(FibresFirstSolver&&) noexcept;
+  FibresFirstSolver& operator=(FibresFirstSolver&&) = delete;
+  FibresFirstSolver(const FibresFirstSolver&) = delete;
+  FibresFirstSolver& operator=(const FibresFirstSolver&) = delete;
+
+  // Solves one frame. Throws fascicle::Error (bad input) for a wrong number of bone motions or a
+  // non-finite one; (numerical, naming the muscle and frame) when the solve produces non-finite
+  // positions or a volume error above options.max_volume_error. A failed frame leaves the
+  // previous frame's results in place.
+  void calc_frame(const FibresFirstInput& input);
+
+  const FibresFirstModel& get_model() const { return model_; }
+  const Points3& get_particles() const { return x_; }  // all particles, #N x 3
+  const std::vector<FibreBundleFrame>& get_muscles() const { return frames_; }
+  const FibresFirstInfo& get_info() const { return info_; }
+  // The fibres of muscle m as polylines (#particles_per_fibre x 3 each).
+  std::vector<Points3> calc_fibres(int m) const;
+  // Forget the previous frame (warm start, velocities, contacts).
+  void reset();
+
+  struct Workspace;  // factors, contacts, scratch (defined in the .cpp)
+
+ private:
+  const FibresFirstModel& model_;
+  std::unique_ptr<Workspace> ws_;
+  Points3 x_;
+  std::vector<FibreBundleFrame> frames_;
+  FibresFirstInfo info_;
+};
+
+// One-off: builds a solver and solves a single frame from the rest pose.
+std::vector<FibreBundleFrame> calc_fibres_first_frame(const FibresFirstModel& model,
+                                                      const FibresFirstInput& input);
+
+}  // namespace fascicle

@@ -1,0 +1,548 @@
+// Fibres-first solver: per frame, projective dynamics (local/global) on the particle springs with
+// the volume held by a Lagrange multiplier, bone and muscle contacts as stiff targets, and optional
+// backward-Euler dynamics (see fibres_first.hpp and docs/representations.md).
+#include "fascicle/deformation/fibres_first.hpp"
+
+#include "fascicle/core/error.hpp"
+#include "fascicle/core/parallel.hpp"
+#include "fascicle/deformation/mesh_operators.hpp"
+
+#include <Eigen/SparseCholesky>
+#include <nanoflann.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <fmt/format.h>
+#include <unordered_set>
+
+namespace fascicle {
+
+namespace {
+
+ErrorContext frame_context(const std::string& name, std::string suggestion = {}) {
+  return {.object = name, .suggestion = std::move(suggestion)};
+}
+
+struct PointCloud {
+  const Points3& P;
+  std::size_t kdtree_get_point_count() const { return static_cast<std::size_t>(P.rows()); }
+  double kdtree_get_pt(std::size_t i, std::size_t d) const { return P(i, d); }
+  template <class Box>
+  bool kdtree_get_bbox(Box&) const { return false; }
+};
+using PointTree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, PointCloud>,
+                                                      PointCloud, 3, std::size_t>;
+
+// Surface vertices of a muscle from particle positions (rings, then the two cap centres).
+Points3 gather_surface(const FibreBundle& m, const Points3& x, int P) {
+  const int n = static_cast<int>(m.surface_particles.size());
+  Points3 S(n + 2, 3);
+  for (int j = 0; j < n; ++j) S.row(j) = x.row(m.surface_particles[j]);
+  const int rings = n / P;
+  S.row(n).setZero();
+  S.row(n + 1).setZero();
+  for (int k = 0; k < rings; ++k) {
+    S.row(n) += S.row(k * P) / rings;
+    S.row(n + 1) += S.row(k * P + P - 1) / rings;
+  }
+  return S;
+}
+
+double surface_volume(const FibreBundle& m, const Points3& S) {
+  return calc_enclosed_volume(S, m.surface_triangles, S.colwise().mean().transpose());
+}
+
+}  // namespace
+
+// One muscle's linear system: K = sum_springs k A^T A (free rows) + m/h^2 I (dynamic) + contact
+// weights on the diagonal; factorised numerically again only when those diagonal terms change.
+struct MuscleSystem {
+  SparseMatrix K_springs;
+  SparseMatrix K;
+  std::vector<Eigen::Index> diag;  // position of K(j, j) in K.valuePtr()
+  Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower> ldlt;
+  bool analysed = false, valid = false;
+  std::vector<double> factored_weight;  // per free particle
+  double factored_mass_term = 0.0;
+  std::vector<double> weight;  // per free particle: contact weight wanted this iteration
+};
+
+struct MusclePair {
+  int p = -1, q = -1;
+  double allowed_m = 0.0;
+};
+
+struct FibresFirstSolver::Workspace {
+  std::vector<std::unique_ptr<MuscleSystem>> systems;  // per muscle
+  // bone contacts, per particle (bone -1: none); targets fixed in the bone's rest frame
+  std::vector<int> contact_bone;
+  std::vector<Vec3> contact_target_rest, contact_normal_rest;
+  std::vector<MusclePair> pairs;
+  std::unordered_set<long long> pair_keys;
+  Points3 pair_target;           // per particle: mean pair target this iteration
+  std::vector<int> pair_count;   // per particle
+  Points3 previous, velocity;
+  std::vector<Transform> previous_motions;
+  bool has_previous = false;
+  int frames = 0;
+};
+
+FibresFirstSolver::FibresFirstSolver(const FibresFirstModel& model)
+    : model_(model), ws_(std::make_unique<Workspace>()) {
+  Workspace& ws = *ws_;
+  const int N = model_.num_particles();
+  for (std::size_t mi = 0; mi < model_.muscles.size(); ++mi) {
+    const FibreBundle& m = model_.muscles[mi];
+    MuscleSystem& sys = *ws.systems.emplace_back(std::make_unique<MuscleSystem>());
+    const int nf = static_cast<int>(m.free.size());
+    std::vector<Eigen::Triplet<double>> t;
+    for (int j = 0; j < nf; ++j) t.emplace_back(j, j, 0.0);  // every diagonal entry in the pattern
+    for (int s = model_.first_spring[mi]; s < model_.first_spring[mi + 1]; ++s) {
+      const Spring& sp = model_.springs[s];
+      const int a = m.free_index[sp.a - m.first_particle], b = m.free_index[sp.b - m.first_particle];
+      if (a >= 0) t.emplace_back(a, a, sp.stiffness);
+      if (b >= 0) t.emplace_back(b, b, sp.stiffness);
+      if (a >= 0 && b >= 0) {
+        t.emplace_back(std::max(a, b), std::min(a, b), -sp.stiffness);
+      }
+    }
+    sys.K_springs.resize(nf, nf);
+    sys.K_springs.setFromTriplets(t.begin(), t.end());  // lower triangle only
+    sys.K_springs.makeCompressed();
+    sys.K = sys.K_springs;
+    sys.diag.resize(nf);
+    for (int j = 0; j < sys.K.outerSize(); ++j)
+      for (SparseMatrix::InnerIterator it(sys.K, j); it; ++it)
+        if (it.row() == j) sys.diag[j] = &it.valueRef() - sys.K.valuePtr();
+    sys.factored_weight.assign(nf, 0.0);
+    sys.weight.assign(nf, 0.0);
+  }
+  ws.contact_bone.assign(N, -1);
+  ws.contact_target_rest.assign(N, Vec3::Zero());
+  ws.contact_normal_rest.assign(N, Vec3::Zero());
+  ws.pair_target = Points3::Zero(N, 3);
+  ws.pair_count.assign(N, 0);
+  x_ = model_.rest;
+  frames_.resize(model_.muscles.size());
+}
+
+FibresFirstSolver::~FibresFirstSolver() = default;
+FibresFirstSolver::FibresFirstSolver(FibresFirstSolver&&) noexcept = default;
+
+void FibresFirstSolver::reset() {
+  Workspace& ws = *ws_;
+  std::fill(ws.contact_bone.begin(), ws.contact_bone.end(), -1);
+  ws.pairs.clear();
+  ws.pair_keys.clear();
+  ws.has_previous = false;
+  x_ = model_.rest;
+  frames_.assign(model_.muscles.size(), {});
+  info_ = {};
+}
+
+std::vector<Points3> FibresFirstSolver::calc_fibres(int m) const {
+  const FibreBundle& b = model_.muscles.at(m);
+  const int P = model_.options.particles_per_fibre;
+  std::vector<Points3> out;
+  for (int f = 0; f < b.num_fibres; ++f) out.push_back(x_.middleRows(b.first_particle + f * P, P));
+  return out;
+}
+
+namespace {
+
+// Everything one frame needs, shared read-only by the per-muscle steps.
+struct FrameContext {
+  const FibresFirstModel& model;
+  const std::vector<Transform>& motions;  // per bone, X_now_rest
+  const Points3* inertial = nullptr;      // dynamic: x_n + h v (free rows)
+  double mass_scale = 0.0;                // 1/h^2 (dynamic) or 0
+  double contact_weight = 0.0;
+};
+
+// Adds particles that entered a bone (beyond their rest depth) as contacts; returns the number
+// added and reports the deepest penetration beyond rest over all particles.
+int detect_bone_contacts(const FrameContext& c, const Points3& x, std::vector<int>& contact_bone,
+                         std::vector<Vec3>& target_rest, std::vector<Vec3>& normal_rest,
+                         bool add, std::vector<double>* max_depth_per_muscle) {
+  const FibresFirstModel& model = c.model;
+  const double margin = model.options.bone_margin_m;
+  int added = 0;
+  for (int b = 0; b < model.num_bones(); ++b) {
+    const MeshQuery& bone = *model.bones[b];
+    const Transform X_rest_now = c.motions[b].inverse();
+    const TriMesh& mesh = bone.get_mesh();
+    for (int p = 0; p < model.num_particles(); ++p) {
+      if (model.fixed_bone[p] == b || model.rest_bone_depth[b][p] > 0.0) continue;
+      const Vec3 local = X_rest_now * Vec3(x.row(p).transpose());
+      const double moved = (local - model.rest.row(p).transpose()).norm();
+      if (moved < model.rest_bone_clearance[b][p]) continue;  // cannot have reached the bone
+      if (!bone.calc_is_inside(local)) continue;
+      const ClosestPoint cp = bone.calc_closest_point(local);
+      if (max_depth_per_muscle) {
+        double& d = (*max_depth_per_muscle)[model.muscle_of[p]];
+        d = std::max(d, cp.distance);
+      }
+      if (!add || model.role[p] == ParticleRole::fixed || contact_bone[p] >= 0) continue;
+      const Vec3 a = mesh.V.row(mesh.F(cp.triangle, 0)), bb = mesh.V.row(mesh.F(cp.triangle, 1)),
+                 cc = mesh.V.row(mesh.F(cp.triangle, 2));
+      Vec3 n = (bb - a).cross(cc - a);
+      n = n.norm() > 0.0 ? Vec3(n.normalized()) : Vec3((cp.point - local).normalized());
+      contact_bone[p] = b;
+      target_rest[p] = cp.point + margin * n;
+      normal_rest[p] = n;
+      ++added;
+    }
+  }
+  return added;
+}
+
+// Finds surface particles of different muscles closer than min(muscle margin, rest distance);
+// adds new pairs when `add`; returns the number added and the largest shortfall per muscle.
+int detect_muscle_pairs(const FibresFirstModel& model, const Points3& x,
+                        std::vector<MusclePair>& pairs, std::unordered_set<long long>& keys,
+                        bool add, std::vector<double>* max_overlap_per_muscle) {
+  const double margin = model.options.muscle_margin_m;
+  if (model.muscles.size() < 2 || margin <= 0.0) return 0;
+  std::vector<int> ids;
+  for (const FibreBundle& m : model.muscles)
+    ids.insert(ids.end(), m.surface_particles.begin(), m.surface_particles.end());
+  Points3 S(ids.size(), 3);
+  for (std::size_t j = 0; j < ids.size(); ++j) S.row(j) = x.row(ids[j]);
+  const PointCloud cloud{S};
+  PointTree tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(12));
+  tree.buildIndex();
+  int added = 0;
+  std::vector<std::pair<std::size_t, double>> hits;
+  nanoflann::SearchParams params;
+  params.sorted = false;
+  const long long N = model.num_particles();
+  for (std::size_t j = 0; j < ids.size(); ++j) {
+    const int p = ids[j];
+    const Vec3 xp = S.row(j);
+    hits.clear();
+    tree.radiusSearch(xp.data(), margin * margin, hits, params);
+    for (const auto& [k, d2] : hits) {
+      const int q = ids[k];
+      if (q <= p || model.muscle_of[q] == model.muscle_of[p]) continue;
+      const double allowed = std::min(margin, (model.rest.row(p) - model.rest.row(q)).norm());
+      const double shortfall = allowed - std::sqrt(d2);
+      if (shortfall <= 1e-12) continue;
+      if (max_overlap_per_muscle)
+        for (int mm : {model.muscle_of[p], model.muscle_of[q]})
+          (*max_overlap_per_muscle)[mm] = std::max((*max_overlap_per_muscle)[mm], shortfall);
+      if (add && keys.insert(p * N + q).second) {
+        pairs.push_back({p, q, allowed});
+        ++added;
+      }
+    }
+  }
+  return added;
+}
+
+}  // namespace
+
+void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
+  Workspace& ws = *ws_;
+  const FibresFirstModel& model = model_;
+  const FibresFirstOptions& o = model.options;
+  const int P = o.particles_per_fibre;
+  const int N = model.num_particles();
+  const int frame = ws.frames++;
+  info_ = {};
+  info_.frame = frame;
+
+  // bone motions
+  std::vector<Transform> motions = input.bone_motions;
+  if (motions.empty()) motions.assign(model.num_bones(), Transform::Identity());
+  if (static_cast<int>(motions.size()) != model.num_bones())
+    throw_bad_input(fmt::format("frame {}: {} bone motions given for {} bones", frame,
+                                motions.size(), model.num_bones()));
+  for (int b = 0; b < model.num_bones(); ++b)
+    if (!motions[b].matrix().allFinite())
+      throw_bad_input(fmt::format("frame {}: the motion of bone {} is not finite", frame, b));
+  const double h = o.dynamic ? (input.time_step_s > 0.0 ? input.time_step_s : o.default_time_step_s)
+                             : 0.0;
+  if (o.dynamic && !std::isfinite(h))
+    throw_bad_input(fmt::format("frame {}: time step {} s is not finite", frame, input.time_step_s));
+
+  // initial guess: fixed particles follow their bones; free ones move by the blend of their
+  // origin and insertion bones' motions since the previous frame (Modenese and Kohout 2020)
+  const Points3& before = ws.has_previous ? ws.previous : model.rest;
+  std::vector<Transform> step(model.num_bones());
+  for (int b = 0; b < model.num_bones(); ++b)
+    step[b] = ws.has_previous ? motions[b] * ws.previous_motions[b].inverse() : motions[b];
+  Points3 x(N, 3);
+  for (std::size_t mi = 0; mi < model.muscles.size(); ++mi) {
+    const FibreBundle& m = model.muscles[mi];
+    const int ob = m.origin_bone >= 0 ? m.origin_bone : m.insertion_bone;
+    const int ib = m.insertion_bone >= 0 ? m.insertion_bone : m.origin_bone;
+    for (int p = m.first_particle; p < m.first_particle + m.num_particles; ++p) {
+      if (model.role[p] == ParticleRole::fixed) {
+        x.row(p) = (motions[model.fixed_bone[p]] * Vec3(model.rest.row(p).transpose())).transpose();
+        continue;
+      }
+      const double t = model.fibre_t[p];
+      const double w = o.blend_a * t * t - (o.blend_a + 1.0) * t + 1.0;
+      const Vec3 xb = before.row(p);
+      x.row(p) = (w * (step[ob] * xb) + (1.0 - w) * (step[ib] * xb)).transpose();
+    }
+  }
+  Points3 inertial;
+  if (o.dynamic) {
+    // y = x_n + h v_n / (1 + c h): the inertial position with implicit velocity damping
+    inertial = before;
+    if (ws.has_previous)
+      inertial += h / (1.0 + o.damping_per_s * h) * ws.velocity;
+  }
+  const FrameContext ctx{model, motions, o.dynamic ? &inertial : nullptr,
+                         o.dynamic ? 1.0 / (h * h) : 0.0, o.contact_weight * o.along_stiffness};
+
+  // contacts at the start: previous bone contacts (kept unless released last frame), new ones
+  ws.pairs.clear();
+  ws.pair_keys.clear();
+  detect_bone_contacts(ctx, x, ws.contact_bone, ws.contact_target_rest, ws.contact_normal_rest,
+                       true, nullptr);
+  detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
+
+  const int nm = static_cast<int>(model.muscles.size());
+  std::vector<double> steps(nm, 0.0);
+  std::vector<char> volume_failed(nm, 0);
+  Points3 snapshot;
+  for (int round = 0; round < o.max_contact_rounds; ++round) {
+    ++info_.contact_rounds;
+    // contact weights wanted per free particle; refactorise the muscles whose weights changed
+    for (int mi = 0; mi < nm; ++mi) {
+      const FibreBundle& m = model.muscles[mi];
+      MuscleSystem& sys = *ws.systems[mi];
+      std::fill(sys.weight.begin(), sys.weight.end(), 0.0);
+      for (std::size_t j = 0; j < m.free.size(); ++j)
+        if (ws.contact_bone[m.free[j]] >= 0) sys.weight[j] = ctx.contact_weight;
+    }
+    for (const MusclePair& pr : ws.pairs)
+      for (int p : {pr.p, pr.q}) {
+        const FibreBundle& m = model.muscles[model.muscle_of[p]];
+        const int j = m.free_index[p - m.first_particle];
+        if (j >= 0) ws.systems[model.muscle_of[p]]->weight[j] = ctx.contact_weight;
+      }
+    std::vector<int> refactor;
+    for (int mi = 0; mi < nm; ++mi) {
+      const MuscleSystem& sys = *ws.systems[mi];
+      const double mass_term = model.muscles[mi].particle_mass_kg * ctx.mass_scale;
+      if (!sys.valid || sys.weight != sys.factored_weight || mass_term != sys.factored_mass_term)
+        refactor.push_back(mi);
+    }
+    std::vector<char> failed(nm, 0);
+    parallel_for(refactor.size(), [&](std::size_t r) {
+      const int mi = refactor[r];
+      MuscleSystem& sys = *ws.systems[mi];
+      const double mass_term = model.muscles[mi].particle_mass_kg * ctx.mass_scale;
+      const double* base = sys.K_springs.valuePtr();
+      for (std::size_t j = 0; j < sys.diag.size(); ++j)
+        sys.K.valuePtr()[sys.diag[j]] = base[sys.diag[j]] + mass_term + sys.weight[j];
+      if (!sys.analysed) {
+        sys.ldlt.analyzePattern(sys.K);
+        sys.analysed = true;
+      }
+      sys.ldlt.factorize(sys.K);
+      sys.valid = sys.ldlt.info() == Eigen::Success;
+      failed[mi] = !sys.valid;
+      sys.factored_weight = sys.weight;
+      sys.factored_mass_term = mass_term;
+    });
+    info_.factorisations += static_cast<int>(refactor.size());
+    for (int mi = 0; mi < nm; ++mi)
+      if (failed[mi])
+        throw_numerical(fmt::format("frame {}: factorisation of the spring system of muscle '{}' "
+                                    "failed", frame, model.muscles[mi].name),
+                        frame_context(model.muscles[mi].name));
+
+    // local/global iterations
+    for (int it = 0; it < o.max_iterations; ++it) {
+      ++info_.iterations;
+      snapshot = x;
+      // muscle-muscle targets: each pair pushed apart symmetrically to its allowed distance
+      ws.pair_target.setZero();
+      std::fill(ws.pair_count.begin(), ws.pair_count.end(), 0);
+      for (const MusclePair& pr : ws.pairs) {
+        const Vec3 d = snapshot.row(pr.p) - snapshot.row(pr.q);
+        const double dist = d.norm();
+        Vec3 tp = snapshot.row(pr.p), tq = snapshot.row(pr.q);
+        if (dist < pr.allowed_m) {
+          const Vec3 rest_d = model.rest.row(pr.p) - model.rest.row(pr.q);
+          const Vec3 n = dist > 1e-12 ? Vec3(d / dist) : Vec3(rest_d.normalized());
+          const bool p_fixed = model.role[pr.p] == ParticleRole::fixed;
+          const bool q_fixed = model.role[pr.q] == ParticleRole::fixed;
+          const double share_p = p_fixed ? 0.0 : (q_fixed ? 1.0 : 0.5);
+          tp += share_p * (pr.allowed_m - dist) * n;
+          tq -= (1.0 - share_p) * (pr.allowed_m - dist) * n;
+        }
+        ws.pair_target.row(pr.p) += tp.transpose();
+        ws.pair_target.row(pr.q) += tq.transpose();
+        ++ws.pair_count[pr.p];
+        ++ws.pair_count[pr.q];
+      }
+      parallel_for(static_cast<std::size_t>(nm), [&](std::size_t mi) {
+        const FibreBundle& m = model.muscles[mi];
+        const MuscleSystem& sys = *ws.systems[mi];
+        const int nf = static_cast<int>(m.free.size());
+        const int base = m.first_particle;
+        const bool volume = o.hold_volume && m.surface_triangles.rows() > 0;
+        Eigen::MatrixXd B = Eigen::MatrixXd::Zero(nf, volume ? 6 : 3);
+        // local step: every spring's rest-length vector along its current direction
+        for (int s = model.first_spring[mi]; s < model.first_spring[mi + 1]; ++s) {
+          const Spring& sp = model.springs[s];
+          const Vec3 xa = snapshot.row(sp.a), xb = snapshot.row(sp.b);
+          Vec3 d = xa - xb;
+          const double len = d.norm();
+          d = len > 1e-15 ? Vec3(d * (sp.rest_length_m / len))
+                          : Vec3((model.rest.row(sp.a) - model.rest.row(sp.b)).transpose());
+          const int a = m.free_index[sp.a - base], b = m.free_index[sp.b - base];
+          const double k = sp.stiffness;
+          if (a >= 0) B.row(a).head<3>() += (k * (b >= 0 ? d : Vec3(d + xb))).transpose();
+          if (b >= 0) B.row(b).head<3>() += (k * (a >= 0 ? Vec3(-d) : Vec3(xa - d))).transpose();
+        }
+        const double mass_term = m.particle_mass_kg * ctx.mass_scale;
+        for (int j = 0; j < nf; ++j) {
+          const int p = m.free[j];
+          if (ctx.inertial) B.row(j).head<3>() += mass_term * ctx.inertial->row(p);
+          if (sys.factored_weight[j] == 0.0) continue;
+          const int bone = ws.contact_bone[p];
+          const Vec3 target = bone >= 0 ? Vec3(motions[bone] * ws.contact_target_rest[p])
+                                        : Vec3(ws.pair_target.row(p).transpose() / ws.pair_count[p]);
+          B.row(j).head<3>() += sys.factored_weight[j] * target.transpose();
+        }
+        // volume gradient at the current iterate (rows of free particles)
+        Points3 S;
+        if (volume) {
+          S = gather_surface(m, snapshot, P);
+          const Points3 g = calc_volume_gradient(S, m.surface_triangles);
+          const int ns = static_cast<int>(m.surface_particles.size()), rings = ns / P;
+          for (int j = 0; j < ns; ++j) {
+            Vec3 gj = g.row(j);
+            const int i = j % P;
+            if (i == 0) gj += g.row(ns).transpose() / rings;
+            if (i == P - 1) gj += g.row(ns + 1).transpose() / rings;
+            const int f = m.free_index[m.surface_particles[j] - base];
+            if (f >= 0) B.row(f).tail<3>() = gj.transpose();
+          }
+        }
+        // global step, then the volume: x = x_u + t Y with Y = -K^-1 g, t the root of V(t) = V0
+        const Eigen::MatrixXd Z = sys.ldlt.solve(B);
+        Points3 xm = snapshot.middleRows(base, m.num_particles);
+        for (int j = 0; j < nf; ++j) xm.row(m.free[j] - base) = Z.row(j).head<3>();
+        if (volume) {
+          Points3 Y = Points3::Zero(m.num_particles, 3);
+          for (int j = 0; j < nf; ++j) Y.row(m.free[j] - base) = -Z.row(j).tail<3>();
+          Points3 Sx(S.rows(), 3), Sy(S.rows(), 3);
+          const int ns = static_cast<int>(m.surface_particles.size()), rings = ns / P;
+          for (int j = 0; j < ns; ++j) {
+            Sx.row(j) = xm.row(m.surface_particles[j] - base);
+            Sy.row(j) = Y.row(m.surface_particles[j] - base);
+          }
+          Sx.bottomRows(2).setZero();
+          Sy.bottomRows(2).setZero();
+          for (int k = 0; k < rings; ++k) {
+            Sx.row(ns) += Sx.row(k * P) / rings;
+            Sx.row(ns + 1) += Sx.row(k * P + P - 1) / rings;
+            Sy.row(ns) += Sy.row(k * P) / rings;
+            Sy.row(ns + 1) += Sy.row(k * P + P - 1) / rings;
+          }
+          const Vec3 centre = Sx.colwise().mean().transpose();
+          const double t = solve_volume_cubic(calc_volume_cubic(Sx, Sy, m.surface_triangles, centre),
+                                              m.rest_volume_m3);
+          volume_failed[mi] = !std::isfinite(t);
+          if (std::isfinite(t)) xm += t * Y;
+        }
+        double largest = 0.0;
+        for (int j = 0; j < nf; ++j) {
+          const int p = m.free[j];
+          largest = std::max(largest, (xm.row(p - base) - snapshot.row(p)).norm());
+        }
+        steps[mi] = largest / std::max(m.mean_spring_length_m, 1e-12);
+        x.middleRows(base, m.num_particles) = xm;
+      });
+      info_.residual = *std::max_element(steps.begin(), steps.end());
+      if (!x.allFinite() || !std::isfinite(info_.residual)) {
+        int bad = 0;
+        for (int mi = 0; mi < nm; ++mi)
+          if (!std::isfinite(steps[mi]) ||
+              !x.middleRows(model.muscles[mi].first_particle, model.muscles[mi].num_particles).allFinite()) {
+            bad = mi;
+            break;
+          }
+        throw_numerical(fmt::format("frame {}: the fibres-first solve of muscle '{}' diverged "
+                                    "(non-finite particle positions)", frame, model.muscles[bad].name),
+                        frame_context(model.muscles[bad].name,
+                                      "check the bone motions of this frame and the stiffness options"));
+      }
+      if (info_.residual < o.step_tolerance) break;
+    }
+    // new contacts?
+    const int added = detect_bone_contacts(ctx, x, ws.contact_bone, ws.contact_target_rest,
+                                           ws.contact_normal_rest, true, nullptr) +
+                      detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
+    if (added == 0) break;
+  }
+
+  // results and checks
+  std::vector<FibreBundleFrame> frames(nm);
+  std::vector<double> depth(nm, 0.0), overlap(nm, 0.0);
+  std::vector<int> no_bone_contact = ws.contact_bone;  // metrics only
+  std::vector<Vec3> unused_t(N), unused_n(N);
+  detect_bone_contacts(ctx, x, no_bone_contact, unused_t, unused_n, false, &depth);
+  std::vector<MusclePair> no_pairs;
+  std::unordered_set<long long> no_keys;
+  detect_muscle_pairs(model, x, no_pairs, no_keys, false, &overlap);
+  for (int mi = 0; mi < nm; ++mi) {
+    const FibreBundle& m = model.muscles[mi];
+    FibreBundleFrame& fr = frames[mi];
+    fr.particles = x.middleRows(m.first_particle, m.num_particles);
+    if (m.surface_triangles.rows() > 0) {
+      fr.surface_vertices = gather_surface(m, x, P);
+      fr.volume_m3 = surface_volume(m, fr.surface_vertices);
+      fr.relative_volume_error = std::abs(fr.volume_m3 - m.rest_volume_m3) / m.rest_volume_m3;
+    }
+    fr.max_bone_penetration_m = depth[mi];
+    fr.max_muscle_overlap_m = overlap[mi];
+    if (o.hold_volume && !(fr.relative_volume_error <= o.max_volume_error))
+      throw_numerical(fmt::format("frame {}: the volume of muscle '{}' could not be held (relative "
+                                  "error {:.3g} > {:.3g}{})", frame, m.name, fr.relative_volume_error,
+                                  o.max_volume_error, volume_failed[mi] ? "; no volume root" : ""),
+                      frame_context(m.name, "the deformation is too large for one frame; use "
+                                            "smaller steps between frames or more iterations"));
+  }
+  for (int p = 0; p < N; ++p)
+    if (ws.contact_bone[p] >= 0) ++frames[model.muscle_of[p]].bone_contacts;
+  for (const MusclePair& pr : ws.pairs) {
+    ++frames[model.muscle_of[pr.p]].muscle_contacts;
+    ++frames[model.muscle_of[pr.q]].muscle_contacts;
+  }
+
+  // release bone contacts whose particle the springs pull away from the bone
+  for (int p = 0; p < N; ++p) {
+    const int b = ws.contact_bone[p];
+    if (b < 0) continue;
+    const Vec3 target = motions[b] * ws.contact_target_rest[p];
+    const Vec3 n = motions[b].linear() * ws.contact_normal_rest[p];
+    if ((target - Vec3(x.row(p).transpose())).dot(n) < 0.0) ws.contact_bone[p] = -1;
+  }
+
+  // commit
+  if (o.dynamic) {
+    ws.velocity = ws.has_previous ? Points3((x - ws.previous) / h) : Points3(Points3::Zero(N, 3));
+  }
+  ws.previous = x;
+  ws.previous_motions = motions;
+  ws.has_previous = true;
+  x_ = std::move(x);
+  frames_ = std::move(frames);
+}
+
+std::vector<FibreBundleFrame> calc_fibres_first_frame(const FibresFirstModel& model,
+                                                      const FibresFirstInput& input) {
+  FibresFirstSolver solver(model);
+  solver.calc_frame(input);
+  return solver.get_muscles();
+}
+
+}  // namespace fascicle

@@ -1,0 +1,370 @@
+// Fibres-first model: particles along the rest fibres, the spring network, bone attachments and
+// the display surface (see fibres_first.hpp and docs/representations.md).
+#include "fascicle/deformation/fibres_first.hpp"
+
+#include "fascicle/core/error.hpp"
+#include "fascicle/deformation/mesh_operators.hpp"
+
+#include <nanoflann.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <fmt/format.h>
+#include <numeric>
+#include <set>
+#include <utility>
+
+namespace fascicle {
+
+namespace {
+
+ErrorContext muscle_context(const std::string& name, std::string suggestion = {}) {
+  return {.object = name, .suggestion = std::move(suggestion)};
+}
+
+// `count` points equally spaced in arc length along a polyline (ends kept).
+Points3 resample_uniform(const Points3& line, int count) {
+  const Eigen::Index n = line.rows();
+  VecX s(n);
+  s[0] = 0.0;
+  for (Eigen::Index i = 1; i < n; ++i) s[i] = s[i - 1] + (line.row(i) - line.row(i - 1)).norm();
+  Points3 out(count, 3);
+  Eigen::Index seg = 0;
+  for (int k = 0; k < count; ++k) {
+    const double target = s[n - 1] * k / (count - 1);
+    while (seg + 2 < n && s[seg + 1] < target) ++seg;
+    const double len = s[seg + 1] - s[seg];
+    const double u = len > 0.0 ? std::clamp((target - s[seg]) / len, 0.0, 1.0) : 0.0;
+    out.row(k) = (1.0 - u) * line.row(seg) + u * line.row(seg + 1);
+  }
+  out.row(0) = line.row(0);
+  out.row(count - 1) = line.row(n - 1);
+  return out;
+}
+
+// k-d tree over a #P x 3 array (nanoflann adaptor).
+struct PointCloud {
+  const Points3& P;
+  std::size_t kdtree_get_point_count() const { return static_cast<std::size_t>(P.rows()); }
+  double kdtree_get_pt(std::size_t i, std::size_t d) const { return P(i, d); }
+  template <class Box>
+  bool kdtree_get_bbox(Box&) const { return false; }
+};
+using PointTree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, PointCloud>,
+                                                      PointCloud, 3, std::size_t>;
+
+// Symmetrised k-nearest-neighbour graph of the fibres, measured between their middle particles
+// (the rest cross-section). Returns unordered pairs (f < g).
+std::vector<std::pair<int, int>> calc_fibre_neighbours(const Points3& mid, int k) {
+  const int n = static_cast<int>(mid.rows());
+  std::set<std::pair<int, int>> pairs;
+  if (n < 2 || k < 1) return {};
+  const PointCloud cloud{mid};
+  PointTree tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10));
+  tree.buildIndex();
+  const std::size_t want = static_cast<std::size_t>(std::min(k + 1, n));
+  std::vector<std::size_t> idx(want);
+  std::vector<double> d2(want);
+  for (int f = 0; f < n; ++f) {
+    const Vec3 q = mid.row(f);
+    const std::size_t found = tree.knnSearch(q.data(), want, idx.data(), d2.data());
+    for (std::size_t j = 0; j < found; ++j) {
+      const int g = static_cast<int>(idx[j]);
+      if (g != f) pairs.emplace(std::min(f, g), std::max(f, g));
+    }
+  }
+  return {pairs.begin(), pairs.end()};
+}
+
+// Convex hull of 2-D points (Andrew's monotone chain), counter-clockwise, keeping points on its
+// edges (the boundary fibres of a grid include its sides). Empty when the points span no area.
+std::vector<int> calc_convex_hull(const std::vector<Vec2>& p) {
+  std::vector<int> order(p.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::sort(order.begin(), order.end(), [&](int a, int b) {
+    return p[a].x() < p[b].x() || (p[a].x() == p[b].x() && p[a].y() < p[b].y());
+  });
+  if (order.size() < 3) return {};
+  auto cross = [&](int o, int a, int b) {
+    return (p[a] - p[o]).x() * (p[b] - p[o]).y() - (p[a] - p[o]).y() * (p[b] - p[o]).x();
+  };
+  // area test first: collinear input would make both chains contain every point
+  double extent = 0.0, twice_area = 0.0;
+  for (int i : order) extent = std::max(extent, (p[i] - p[order[0]]).norm());
+  for (int i : order) twice_area = std::max(twice_area, std::abs(cross(order[0], order.back(), i)));
+  if (!(twice_area > 1e-9 * extent * extent)) return {};
+  std::vector<int> hull(2 * order.size());
+  std::size_t k = 0;
+  for (int i : order) {
+    while (k >= 2 && cross(hull[k - 2], hull[k - 1], i) < 0.0) --k;
+    hull[k++] = i;
+  }
+  for (std::size_t j = order.size() - 1, t = k + 1; j-- > 0;) {
+    const int i = order[j];
+    while (k >= t && cross(hull[k - 2], hull[k - 1], i) < 0.0) --k;
+    hull[k++] = i;
+  }
+  hull.resize(k - 1);
+  return hull;
+}
+
+void check_options(const FibresFirstOptions& o) {
+  auto positive = [](double v) { return std::isfinite(v) && v > 0.0; };
+  if (!positive(o.along_stiffness) || !positive(o.across_stiffness))
+    throw_bad_input(fmt::format("spring stiffness must be > 0 N/m (along {}, across {})",
+                            o.along_stiffness, o.across_stiffness),
+                {.suggestion = "set along_stiffness and across_stiffness to positive values"});
+  if (!(o.bending_stiffness >= 0.0) || !std::isfinite(o.bending_stiffness))
+    throw_bad_input(fmt::format("bending stiffness must be >= 0 N/m (got {})", o.bending_stiffness));
+  if (o.particles_per_fibre < 2 || o.cross_neighbours < 0 || o.max_iterations < 1 ||
+      o.max_contact_rounds < 1 || o.max_volume_iterations < 0)
+    throw_bad_input("invalid fibres-first options (particles_per_fibre >= 2, cross_neighbours >= 0, "
+                "max_iterations >= 1, max_contact_rounds >= 1, max_volume_iterations >= 0)");
+  if (!positive(o.density_kg_per_m3) || !positive(o.contact_weight) || !positive(o.step_tolerance) ||
+      !positive(o.volume_tolerance) || !positive(o.max_volume_error) ||
+      !positive(o.default_time_step_s) || !(o.damping_per_s >= 0.0) || !(o.bone_margin_m >= 0.0) ||
+      !(o.muscle_margin_m >= 0.0) || !(o.end_attachment_distance_m >= 0.0) ||
+      !(o.bone_attachment_distance_m >= 0.0) || !(std::abs(o.blend_a) <= 1.0))
+    throw_bad_input("invalid fibres-first options (density, weights, tolerances and time step must be "
+                "> 0; damping, margins and distances >= 0; |blend_a| <= 1)");
+}
+
+// Display surface of one muscle: a tube through the boundary fibres closed by two fans.
+void build_surface(FibreBundle& m, const Points3& rest, int P, bool need_volume) {
+  const int nb = static_cast<int>(m.boundary_fibres.size());
+  if (nb < 3) {
+    if (need_volume)
+      throw_bad_input(fmt::format("muscle '{}' has fewer than 3 fibres off one line in its rest "
+                                  "cross-section; its volume is undefined", m.name),
+                      muscle_context(m.name, "give more fibres, or set hold_volume = false"));
+    return;
+  }
+  for (int k = 0; k < nb; ++k)
+    for (int i = 0; i < P; ++i)
+      m.surface_particles.push_back(m.first_particle + m.boundary_fibres[k] * P + i);
+  const int cap0 = nb * P, cap1 = nb * P + 1;
+  std::vector<Eigen::Vector3i> tris;
+  for (int k = 0; k < nb; ++k) {
+    const int k1 = (k + 1) % nb;
+    for (int i = 0; i + 1 < P; ++i) {
+      const int a = k * P + i, b = k1 * P + i, c = k1 * P + i + 1, d = k * P + i + 1;
+      tris.emplace_back(a, b, c);
+      tris.emplace_back(a, c, d);
+    }
+    tris.emplace_back(cap0, k1 * P, k * P);
+    tris.emplace_back(cap1, k * P + P - 1, k1 * P + P - 1);
+  }
+  m.surface_triangles.resize(static_cast<Eigen::Index>(tris.size()), 3);
+  for (std::size_t t = 0; t < tris.size(); ++t) m.surface_triangles.row(t) = tris[t].transpose();
+
+  Points3 S(nb * P + 2, 3);
+  for (int j = 0; j < nb * P; ++j) S.row(j) = rest.row(m.surface_particles[j]);
+  S.row(cap0) = Vec3::Zero().transpose();
+  S.row(cap1) = Vec3::Zero().transpose();
+  for (int k = 0; k < nb; ++k) {
+    S.row(cap0) += S.row(k * P) / nb;
+    S.row(cap1) += S.row(k * P + P - 1) / nb;
+  }
+  const Vec3 centre = S.colwise().mean().transpose();
+  double volume = calc_enclosed_volume(S, m.surface_triangles, centre);
+  if (volume < 0.0) {
+    m.surface_triangles.col(1).swap(m.surface_triangles.col(2));
+    volume = -volume;
+  }
+  m.rest_volume_m3 = volume;
+}
+
+}  // namespace
+
+FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& specs,
+                                          const std::vector<const MeshQuery*>& bones,
+                                          const FibresFirstOptions& options) {
+  check_options(options);
+  FibresFirstModel model;
+  model.options = options;
+  model.bones = bones;
+  for (const MeshQuery* b : bones)
+    if (!b) throw_usage("null bone query given to the fibres-first model");
+  const int P = options.particles_per_fibre;
+  const int nbones = static_cast<int>(bones.size());
+
+  // particles
+  int total = 0;
+  for (const FibreBundleSpec& s : specs) {
+    if (s.fibres.empty())
+      throw_bad_input(fmt::format("muscle '{}' has no fibres", s.name), muscle_context(s.name));
+    for (int bone : {s.origin_bone, s.insertion_bone})
+      if (bone < -1 || bone >= nbones)
+        throw_bad_input(fmt::format("muscle '{}' refers to bone {} but the model has {} bones",
+                                    s.name, bone, nbones),
+                        muscle_context(s.name));
+    total += static_cast<int>(s.fibres.size()) * P;
+  }
+  model.rest.resize(total, 3);
+  model.muscle_of.resize(total);
+  model.fibre_t.resize(total);
+  model.role.assign(total, ParticleRole::free);
+  model.fixed_bone.assign(total, -1);
+  int offset = 0;
+  for (std::size_t mi = 0; mi < specs.size(); ++mi) {
+    const FibreBundleSpec& s = specs[mi];
+    FibreBundle m;
+    m.name = s.name;
+    m.origin_bone = s.origin_bone;
+    m.insertion_bone = s.insertion_bone;
+    m.first_particle = offset;
+    m.num_fibres = static_cast<int>(s.fibres.size());
+    m.num_particles = m.num_fibres * P;
+    for (int f = 0; f < m.num_fibres; ++f) {
+      const Points3& line = s.fibres[f];
+      if (line.rows() < 2 || !line.allFinite())
+        throw_bad_input(fmt::format("fibre {} of muscle '{}' has fewer than 2 points or a "
+                                    "non-finite coordinate", f, s.name),
+                        muscle_context(s.name));
+      double length = 0.0;
+      for (Eigen::Index i = 1; i < line.rows(); ++i) length += (line.row(i) - line.row(i - 1)).norm();
+      if (!(length > 0.0))
+        throw_bad_input(fmt::format("fibre {} of muscle '{}' has zero length", f, s.name),
+                        muscle_context(s.name));
+      model.rest.middleRows(offset + f * P, P) = resample_uniform(line, P);
+      for (int i = 0; i < P; ++i) {
+        model.muscle_of[offset + f * P + i] = static_cast<int>(mi);
+        model.fibre_t[offset + f * P + i] = static_cast<double>(i) / (P - 1);
+      }
+    }
+    offset += m.num_particles;
+    model.muscles.push_back(std::move(m));
+  }
+
+  // rest distances to the bones (clearance outside, depth inside)
+  for (const MeshQuery* bone : bones) {
+    VecX clearance = bone->calc_distances(model.rest);
+    const InsideFlags inside = bone->calc_is_inside(model.rest);
+    VecX depth = VecX::Zero(total);
+    for (int p = 0; p < total; ++p)
+      if (inside[p]) {
+        depth[p] = clearance[p];
+        clearance[p] = 0.0;
+      }
+    model.rest_bone_clearance.push_back(std::move(clearance));
+    model.rest_bone_depth.push_back(std::move(depth));
+  }
+  auto distance_to = [&](int bone, int p) {
+    return model.rest_bone_clearance[bone][p];  // 0 inside
+  };
+
+  // per muscle: springs, fixed particles, surface, mass
+  model.first_spring.push_back(0);
+  for (FibreBundle& m : model.muscles) {
+    const int base = m.first_particle;
+    auto id = [&](int f, int i) { return base + f * P + i; };
+    auto add_spring = [&](int a, int b, double k) {
+      const double L = (model.rest.row(a) - model.rest.row(b)).norm();
+      model.springs.push_back({a, b, L, k});
+    };
+    for (int f = 0; f < m.num_fibres; ++f) {
+      for (int i = 0; i + 1 < P; ++i) add_spring(id(f, i), id(f, i + 1), options.along_stiffness);
+      if (options.bending_stiffness > 0.0)
+        for (int i = 0; i + 2 < P; ++i) add_spring(id(f, i), id(f, i + 2), options.bending_stiffness);
+    }
+    Points3 mid(m.num_fibres, 3);
+    for (int f = 0; f < m.num_fibres; ++f) mid.row(f) = model.rest.row(id(f, P / 2));
+    for (const auto& [f, g] : calc_fibre_neighbours(mid, options.cross_neighbours))
+      for (int i = 0; i < P; ++i) add_spring(id(f, i), id(g, i), options.across_stiffness);
+    model.first_spring.push_back(static_cast<int>(model.springs.size()));
+    double mean = 0.0;
+    int count = 0;
+    for (int s = model.first_spring[model.first_spring.size() - 2]; s < model.first_spring.back(); ++s) {
+      mean += model.springs[s].rest_length_m;
+      ++count;
+    }
+    m.mean_spring_length_m = count > 0 ? mean / count : 0.0;
+
+    // fixed particles: fibre ends on their bones, then any particle close to the muscle's bones
+    for (int f = 0; f < m.num_fibres; ++f)
+      for (auto [i, bone] : {std::pair{0, m.origin_bone}, std::pair{P - 1, m.insertion_bone}}) {
+        if (bone < 0 || distance_to(bone, id(f, i)) > options.end_attachment_distance_m) continue;
+        model.role[id(f, i)] = ParticleRole::fixed;
+        model.fixed_bone[id(f, i)] = bone;
+      }
+    if (options.bone_attachment_distance_m > 0.0)
+      for (int p = base; p < base + m.num_particles; ++p) {
+        if (model.role[p] == ParticleRole::fixed) continue;
+        int best = -1;
+        double best_d = options.bone_attachment_distance_m;
+        for (int bone : {m.origin_bone, m.insertion_bone})
+          if (bone >= 0 && distance_to(bone, p) <= best_d) {
+            best = bone;
+            best_d = distance_to(bone, p);
+          }
+        if (best >= 0) {
+          model.role[p] = ParticleRole::fixed;
+          model.fixed_bone[p] = best;
+        }
+      }
+
+    // every particle must be connected to a fixed one (otherwise the system is singular)
+    std::vector<std::vector<int>> adjacency(m.num_particles);
+    for (int s = model.first_spring[model.first_spring.size() - 2]; s < model.first_spring.back(); ++s) {
+      adjacency[model.springs[s].a - base].push_back(model.springs[s].b - base);
+      adjacency[model.springs[s].b - base].push_back(model.springs[s].a - base);
+    }
+    std::vector<char> reached(m.num_particles, 0);
+    std::vector<int> queue;
+    for (int p = 0; p < m.num_particles; ++p)
+      if (model.role[base + p] == ParticleRole::fixed) {
+        reached[p] = 1;
+        queue.push_back(p);
+      }
+    if (queue.empty())
+      throw_bad_input(fmt::format("no particle of muscle '{}' is fixed to a bone: its fibres reach "
+                                  "neither the origin bone ({}) nor the insertion bone ({})",
+                                  m.name, m.origin_bone, m.insertion_bone),
+                      muscle_context(m.name, "check the muscle's bones, or raise "
+                                             "end_attachment_distance_m"));
+    for (std::size_t q = 0; q < queue.size(); ++q)
+      for (int r : adjacency[queue[q]])
+        if (!reached[r]) {
+          reached[r] = 1;
+          queue.push_back(r);
+        }
+    for (int p = 0; p < m.num_particles; ++p)
+      if (!reached[p])
+        throw_bad_input(fmt::format("fibre {} of muscle '{}' is connected to no particle fixed to a "
+                                    "bone", p / P, m.name),
+                        muscle_context(m.name, "raise cross_neighbours or end_attachment_distance_m"));
+    m.free_index.assign(m.num_particles, -1);
+    for (int p = 0; p < m.num_particles; ++p)
+      if (model.role[base + p] == ParticleRole::free) {
+        m.free_index[p] = static_cast<int>(m.free.size());
+        m.free.push_back(base + p);
+      }
+
+    // boundary fibres: convex hull of the middle cross-section, projected on the plane normal to
+    // the mean fibre direction
+    Vec3 axis = Vec3::Zero();
+    for (int f = 0; f < m.num_fibres; ++f)
+      axis += (model.rest.row(id(f, P - 1)) - model.rest.row(id(f, 0))).transpose();
+    if (axis.norm() > 0.0) {
+      axis.normalize();
+      const Vec3 u = axis.unitOrthogonal(), v = axis.cross(u);
+      std::vector<Vec2> section(m.num_fibres);
+      for (int f = 0; f < m.num_fibres; ++f) section[f] = Vec2(mid.row(f).dot(u), mid.row(f).dot(v));
+      m.boundary_fibres = calc_convex_hull(section);
+    }
+    build_surface(m, model.rest, P, options.hold_volume);
+  }
+
+  // masses (density x volume share)
+  for (std::size_t mi = 0; mi < model.muscles.size(); ++mi) {
+    FibreBundle& m = model.muscles[mi];
+    const double volume = specs[mi].volume_m3 > 0.0 ? specs[mi].volume_m3 : m.rest_volume_m3;
+    if (options.dynamic && !(volume > 0.0))
+      throw_bad_input(fmt::format("muscle '{}' has no volume for its particle masses", m.name),
+                      muscle_context(m.name, "give volume_m3 in its specification"));
+    m.particle_mass_kg = options.density_kg_per_m3 * volume / m.num_particles;
+  }
+  return model;
+}
+
+}  // namespace fascicle

@@ -1,0 +1,331 @@
+// Fibres-first deformation on small procedural bundles: rest invariance, analytic spring
+// equilibria (static and dynamic), bone non-penetration, muscle-muscle separation, volume under
+// stretch, and input errors.
+#include "fascicle/core/error.hpp"
+#include "fascicle/deformation/fibres_first.hpp"
+#include "fascicle/geometry/primitives.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <functional>
+
+namespace fascicle {
+namespace {
+
+TriMesh moved(TriMesh m, const Vec3& by) {
+  m.V.rowwise() += by.transpose();
+  return m;
+}
+
+Transform translation(const Vec3& v) {
+  Transform T = Transform::Identity();
+  T.translate(v);
+  return T;
+}
+
+// A bundle of nx x ny straight fibres along `axis` from `start` (length L), spaced `gap` apart in
+// the two directions u, v normal to the axis, centred on the line through `start`.
+std::vector<Points3> make_bundle(const Vec3& start, const Vec3& axis, const Vec3& u, double L,
+                                 int nx, int ny, double gap, int points = 5) {
+  const Vec3 v = axis.cross(u);
+  std::vector<Points3> fibres;
+  for (int i = 0; i < nx; ++i)
+    for (int j = 0; j < ny; ++j) {
+      const Vec3 offset = (i - 0.5 * (nx - 1)) * gap * u + (j - 0.5 * (ny - 1)) * gap * v;
+      Points3 f(points, 3);
+      for (int k = 0; k < points; ++k)
+        f.row(k) = (start + offset + axis * (L * k / (points - 1))).transpose();
+      fibres.push_back(f);
+    }
+  return fibres;
+}
+
+// Two slabs (bones) below z = 0 and above z = L that the bundle's ends touch.
+struct EndBones {
+  double L;
+  MeshQuery bottom, top;
+  explicit EndBones(double length)
+      : L(length),
+        bottom(moved(make_box(Vec3(0.02, 0.02, 0.005)), Vec3(0, 0, -0.005))),
+        top(moved(make_box(Vec3(0.02, 0.02, 0.005)), Vec3(0, 0, length + 0.005))) {}
+  std::vector<const MeshQuery*> list() const { return {&bottom, &top}; }
+};
+
+FibresFirstOptions tight_options() {
+  FibresFirstOptions o;
+  o.max_iterations = 400;
+  o.step_tolerance = 1e-10;
+  return o;
+}
+
+TEST(FibresFirst, BundleAtRestStaysAtRest) {
+  const EndBones bones(0.08);
+  const FibreBundleSpec spec{"rest", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), 0.08, 4, 3, 0.004), 0, 1};
+  const FibresFirstModel model = build_fibres_first_model({spec}, bones.list(), tight_options());
+  EXPECT_EQ(model.num_particles(), 12 * 15);
+  EXPECT_EQ(model.muscles[0].boundary_fibres.size(), 10u);  // the sides of the 4 x 3 grid
+  FibresFirstSolver solver(model);
+  solver.calc_frame({});
+  EXPECT_LT((solver.get_particles() - model.rest).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT(solver.get_muscles()[0].relative_volume_error, 1e-12);
+  EXPECT_EQ(solver.get_muscles()[0].max_bone_penetration_m, 0.0);
+  EXPECT_LE(solver.get_info().iterations, 2);
+  // rest volume: the tube through the 3 x 4 hull is a 12 mm x 8 mm x 80 mm box
+  EXPECT_NEAR(model.muscles[0].rest_volume_m3, 0.012 * 0.008 * 0.08, 1e-12);
+}
+
+TEST(FibresFirst, RigidMotionOfAllBonesMovesTheBundleRigidly) {
+  const EndBones bones(0.08);
+  const FibreBundleSpec spec{"rigid", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), 0.08, 3, 3, 0.004), 0, 1};
+  const FibresFirstModel model = build_fibres_first_model({spec}, bones.list(), tight_options());
+  FibresFirstSolver solver(model);
+  Transform T = Transform::Identity();
+  T.translate(Vec3(0.01, -0.02, 0.03)).rotate(Eigen::AngleAxisd(0.7, Vec3(1, 2, 3).normalized()));
+  solver.calc_frame({{T, T}});
+  const Points3 expected = (model.rest * T.linear().transpose()).rowwise() + T.translation().transpose();
+  EXPECT_LT((solver.get_particles() - expected).cwiseAbs().maxCoeff(), 1e-9);
+}
+
+// A single fibre (no volume) stretched along its axis by moving its insertion bone. Along the
+// axis the springs act as linear springs of the coordinate z, so the equilibrium is the solution
+// of a small linear system: with springs only, uniform spacing (L + d) / (P - 1); with bending
+// springs (i, i+2), the one-sided bending springs next to the ends make the spacing non-uniform.
+TEST(FibresFirst, StretchedFibreSettlesToTheAnalyticEquilibrium) {
+  const double L = 0.1, d = 0.02;
+  const int P = 11;
+  const EndBones bones(L);
+  Points3 fibre(3, 3);  // unevenly spaced input points: resampling makes the particles uniform
+  fibre << 0, 0, 0, 0, 0, 0.07, 0, 0, L;
+  for (double kb : {0.0, 40.0}) {
+    FibresFirstOptions o = tight_options();
+    o.hold_volume = false;
+    o.particles_per_fibre = P;
+    o.bending_stiffness = kb;
+    const FibresFirstModel model = build_fibres_first_model({{"single", {fibre}, 0, 1}}, bones.list(), o);
+    FibresFirstSolver solver(model);
+    solver.calc_frame({{Transform::Identity(), translation(Vec3(0, 0, d))}});
+    const Points3& x = solver.get_particles();
+    // reference: minimise sum k/2 (z_j - z_i - l0)^2 over z_1..z_{P-2}, z_0 = 0, z_{P-1} = L + d
+    const double l0 = L / (P - 1);
+    Eigen::MatrixXd K = Eigen::MatrixXd::Zero(P, P);
+    VecX f = VecX::Zero(P);
+    auto spring = [&](int i, int j, double k, double rest) {
+      K(i, i) += k, K(j, j) += k, K(i, j) -= k, K(j, i) -= k;
+      f[i] -= k * rest, f[j] += k * rest;
+    };
+    for (int i = 0; i + 1 < P; ++i) spring(i, i + 1, o.along_stiffness, l0);
+    for (int i = 0; kb > 0.0 && i + 2 < P; ++i) spring(i, i + 2, kb, 2 * l0);
+    VecX z = VecX::Zero(P);
+    z[P - 1] = L + d;
+    const VecX rhs = f.segment(1, P - 2) - K.block(1, 0, P - 2, 1) * z[0] - K.block(1, P - 1, P - 2, 1) * z[P - 1];
+    z.segment(1, P - 2) = K.block(1, 1, P - 2, P - 2).ldlt().solve(rhs);
+    for (int i = 0; i < P; ++i) {
+      EXPECT_NEAR(x(i, 2), z[i], 1e-9) << "particle " << i << " bending " << kb;
+      EXPECT_NEAR(x(i, 0), 0.0, 1e-12);
+      if (kb == 0.0) EXPECT_NEAR(x(i, 2), (L + d) * i / (P - 1), 1e-9);
+    }
+    if (kb > 0.0) EXPECT_GT(std::abs(x(1, 2) - (L + d) / (P - 1)), 1e-5);  // really non-uniform
+    EXPECT_LT(solver.get_info().residual, 1e-10);
+  }
+}
+
+// Longitudinal oscillation of one particle between two fixed ones: omega = sqrt(2 k / m).
+TEST(FibresFirst, DynamicParticleOscillatesAtTheSpringFrequency) {
+  const double L = 0.02;
+  const EndBones bones(L);
+  FibresFirstOptions o = tight_options();
+  o.hold_volume = false;
+  o.particles_per_fibre = 3;
+  o.bending_stiffness = 0.0;
+  o.dynamic = true;
+  o.damping_per_s = 0.0;
+  Points3 fibre(2, 3);
+  fibre << 0, 0, 0, 0, 0, L;
+  FibreBundleSpec spec{"oscillator", {fibre}, 0, 1};
+  spec.volume_m3 = 3e-6;  // 3 particles: m = 1060 kg/m^3 x 1e-6 m^3
+  const FibresFirstModel model = build_fibres_first_model({spec}, bones.list(), o);
+  const double m = 1060.0 * 1e-6, omega = std::sqrt(2.0 * o.along_stiffness / m);
+  const double period = 2.0 * M_PI / omega, h = period / 400.0;
+  FibresFirstSolver solver(model);
+  const double d = 0.002;  // insertion jumps by d: new equilibrium of the middle at L/2 + d/2
+  std::vector<double> crossings;
+  double previous = -d / 2;  // displacement from the new equilibrium at t = 0
+  double late_amplitude = 0.0;
+  for (int k = 1; k <= 1200; ++k) {
+    solver.calc_frame({{Transform::Identity(), translation(Vec3(0, 0, d))}, h});
+    const double u = solver.get_particles()(1, 2) - (L + d) / 2;
+    if ((previous < 0.0) != (u < 0.0)) crossings.push_back((k - 1 + previous / (previous - u)) * h);
+    if (k > 800) late_amplitude = std::max(late_amplitude, std::abs(u));
+    previous = u;
+  }
+  ASSERT_GE(crossings.size(), 4u);
+  const double measured = (crossings[crossings.size() - 1] - crossings[crossings.size() - 3]);
+  // backward Euler lengthens the period by about (omega h)^2 / 2 relative: 0.012 % here
+  EXPECT_NEAR(measured / period, 1.0, 2e-3);
+  // backward Euler's numerical damping: amplitude factor (1 + (omega h)^2)^(-1/2) per step
+  const double decay = std::pow(1.0 + omega * omega * h * h, -800 / 2.0);
+  EXPECT_NEAR(late_amplitude / (d / 2), decay, 0.02);
+}
+
+// A box bone pushed 6 mm into the side of a bundle: no particle ends inside it.
+TEST(FibresFirst, NoParticleEndsInsideABone) {
+  const double L = 0.1;
+  const EndBones ends(L);
+  const MeshQuery block(moved(make_box(Vec3(0.01, 0.03, 0.01)), Vec3(0.016, 0.0, L / 2)));
+  const FibreBundleSpec spec{"pushed", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 3, 3, 0.004), 0, 1};
+  FibresFirstOptions o;
+  const FibresFirstModel model = build_fibres_first_model({spec}, {&ends.bottom, &ends.top, &block}, o);
+  FibresFirstSolver solver(model);
+  for (int k = 1; k <= 6; ++k) {
+    const Transform B = translation(Vec3(-0.001 * k, 0, 0));
+    solver.calc_frame({{Transform::Identity(), Transform::Identity(), B}});
+    const FibreBundleFrame& fr = solver.get_muscles()[0];
+    EXPECT_LE(fr.max_bone_penetration_m, 1e-9) << "frame " << k;
+    EXPECT_LT(fr.relative_volume_error, o.volume_tolerance);
+    const Points3& x = solver.get_particles();
+    for (int p = 0; p < x.rows(); ++p) {
+      const Vec3 local = B.inverse() * Vec3(x.row(p).transpose());
+      EXPECT_FALSE(block.calc_is_inside(local)) << "particle " << p << " frame " << k;
+    }
+  }
+  EXPECT_GT(solver.get_muscles()[0].bone_contacts, 0);
+  // the bundle was really pushed: its boundary fibres facing the block moved by several mm
+  EXPECT_LT(solver.get_particles().col(0).minCoeff(), -0.006);
+}
+
+// Two bundles crossing at right angles, the second pulled across the first by 8 mm: no particle
+// of one ends inside the other's surface, and pairs keep their minimum distance.
+TEST(FibresFirst, BundlesPressedTogetherDoNotInterpenetrate) {
+  const double L = 0.06, gap = 0.003;
+  const MeshQuery a0(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, -0.005)));
+  const MeshQuery a1(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, L + 0.005)));
+  const double x0 = 0.008;  // second bundle's axis, beside the first (half widths 3 mm each)
+  const MeshQuery b0(moved(make_box(Vec3(0.01, 0.005, 0.01)), Vec3(x0, -L / 2 - 0.005, L / 2)));
+  const MeshQuery b1(moved(make_box(Vec3(0.01, 0.005, 0.01)), Vec3(x0, L / 2 + 0.005, L / 2)));
+  FibresFirstOptions o;
+  o.particles_per_fibre = 21;  // 3 mm along the fibres, as across
+  o.muscle_margin_m = 0.0025;
+  const FibreBundleSpec A{"A", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 3, 3, gap), 0, 1};
+  const FibreBundleSpec B{"B", make_bundle(Vec3(x0, -L / 2, L / 2), Vec3::UnitY(), Vec3::UnitX(), L, 3, 3, gap), 2, 3};
+  const FibresFirstModel model = build_fibres_first_model({A, B}, {&a0, &a1, &b0, &b1}, o);
+  FibresFirstSolver solver(model);
+  for (int k = 1; k <= 8; ++k) {
+    const Transform T = translation(Vec3(-0.001 * k, 0, 0));
+    solver.calc_frame({{Transform::Identity(), Transform::Identity(), T, T}});
+    const auto& fr = solver.get_muscles();
+    EXPECT_LE(fr[0].max_muscle_overlap_m, 5e-4) << "frame " << k;
+    EXPECT_LE(fr[1].max_muscle_overlap_m, 5e-4) << "frame " << k;
+  }
+  const auto& fr = solver.get_muscles();
+  EXPECT_GT(fr[0].muscle_contacts, 0);
+  for (int m = 0; m < 2; ++m) {
+    const MeshQuery other(TriMesh{fr[1 - m].surface_vertices, model.muscles[1 - m].surface_triangles});
+    for (int p = 0; p < fr[m].particles.rows(); ++p)
+      EXPECT_FALSE(other.calc_is_inside(Vec3(fr[m].particles.row(p).transpose())))
+          << "particle " << p << " of " << model.muscles[m].name;
+  }
+  // without contact handling the same motion interpenetrates (the test can fail)
+  FibresFirstOptions off = o;
+  off.muscle_margin_m = 0.0;
+  const FibresFirstModel loose = build_fibres_first_model({A, B}, {&a0, &a1, &b0, &b1}, off);
+  FibresFirstSolver free_solver(loose);
+  for (int k = 1; k <= 8; ++k) {
+    const Transform T = translation(Vec3(-0.001 * k, 0, 0));
+    free_solver.calc_frame({{Transform::Identity(), Transform::Identity(), T, T}});
+  }
+  const auto& lf = free_solver.get_muscles();
+  const MeshQuery surface_a(TriMesh{lf[0].surface_vertices, loose.muscles[0].surface_triangles});
+  int inside = 0;
+  for (int p = 0; p < lf[1].particles.rows(); ++p)
+    inside += surface_a.calc_is_inside(Vec3(lf[1].particles.row(p).transpose()));
+  EXPECT_GT(inside, 0);
+}
+
+// Stretching a bundle by 25 %: the volume stays within the tolerance with the volume term and
+// drops by several per cent without it.
+TEST(FibresFirst, VolumeHoldsUnderStretch) {
+  const double L = 0.08;
+  const EndBones bones(L);
+  const FibreBundleSpec spec{"stretched", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 4, 4, 0.004), 0, 1};
+  double error_with = 0.0, error_without = 0.0;
+  for (bool hold : {true, false}) {
+    FibresFirstOptions o;
+    o.hold_volume = hold;
+    const FibresFirstModel model = build_fibres_first_model({spec}, bones.list(), o);
+    FibresFirstSolver solver(model);
+    for (int k = 1; k <= 5; ++k)
+      solver.calc_frame({{Transform::Identity(), translation(Vec3(0, 0, 0.004 * k))}});
+    const FibreBundleFrame& fr = solver.get_muscles()[0];
+    (hold ? error_with : error_without) = fr.relative_volume_error;
+    if (hold) {
+      EXPECT_LT(fr.relative_volume_error, 5e-3);
+      EXPECT_LT(fr.relative_volume_error, o.volume_tolerance);
+    }
+  }
+  EXPECT_LT(error_with, 1e-3);
+  EXPECT_GT(error_without, 0.02);
+}
+
+template <class F>
+Error catch_error(F&& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e;
+  }
+  ADD_FAILURE() << "no fascicle::Error thrown";
+  return Error(ErrorKind::internal, "none");
+}
+
+TEST(FibresFirst, BadInput) {
+  const EndBones bones(0.08);
+  const auto fibres = make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), 0.08, 3, 3, 0.004);
+  // a muscle whose fibres reach no bone
+  Error e = catch_error([&] { build_fibres_first_model({{"floating", fibres, -1, -1}}, bones.list()); });
+  EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+  EXPECT_NE(std::string(e.what()).find("floating"), std::string::npos) << e.what();
+  FibresFirstOptions near;
+  near.end_attachment_distance_m = 0.001;
+  const auto far = make_bundle(Vec3(0, 0, 0.01), Vec3::UnitZ(), Vec3::UnitX(), 0.05, 3, 3, 0.004);
+  e = catch_error([&] { build_fibres_first_model({{"short", far, 0, 1}}, bones.list(), near); });
+  EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+  EXPECT_NE(std::string(e.what()).find("short"), std::string::npos) << e.what();
+  // stiffness <= 0
+  for (double k : {0.0, -1.0, std::nan("")}) {
+    FibresFirstOptions o;
+    o.across_stiffness = k;
+    e = catch_error([&] { build_fibres_first_model({{"m", fibres, 0, 1}}, bones.list(), o); });
+    EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+    EXPECT_NE(std::string(e.what()).find("stiffness"), std::string::npos) << e.what();
+  }
+  // bone index out of range, empty muscle, degenerate fibre
+  e = catch_error([&] { build_fibres_first_model({{"m", fibres, 0, 5}}, bones.list()); });
+  EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+  e = catch_error([&] { build_fibres_first_model({{"empty", {}, 0, 1}}, bones.list()); });
+  EXPECT_NE(std::string(e.what()).find("empty"), std::string::npos);
+  // wrong number of bone motions, non-finite motion
+  const FibresFirstModel model = build_fibres_first_model({{"m", fibres, 0, 1}}, bones.list());
+  FibresFirstSolver solver(model);
+  e = catch_error([&] { solver.calc_frame({{Transform::Identity()}}); });
+  EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+  Transform nan = Transform::Identity();
+  nan.translation().x() = std::nan("");
+  e = catch_error([&] { solver.calc_frame({{Transform::Identity(), nan}}); });
+  EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+  // divergence: springs so stiff that the system overflows -> numerical error naming muscle and frame
+  FibresFirstOptions huge;
+  huge.along_stiffness = 1e308;
+  huge.across_stiffness = 1e308;
+  const FibresFirstModel bad = build_fibres_first_model({{"overflowing", fibres, 0, 1}}, bones.list(), huge);
+  FibresFirstSolver diverging(bad);
+  e = catch_error([&] { diverging.calc_frame({{Transform::Identity(), translation(Vec3(0, 0, 0.01))}}); });
+  EXPECT_EQ(e.kind(), ErrorKind::numerical);
+  EXPECT_NE(std::string(e.what()).find("overflowing"), std::string::npos) << e.what();
+  EXPECT_NE(std::string(e.what()).find("frame 0"), std::string::npos) << e.what();
+  // the failed frame left the previous (rest) state in place
+  EXPECT_EQ(diverging.get_particles(), bad.rest);
+}
+
+}  // namespace
+}  // namespace fascicle
