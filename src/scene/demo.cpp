@@ -195,7 +195,7 @@ DemoScene make_demo_leg(double samples_hz, int muscle_resolution) {
   for (const Def& d : defs) {
     MuscleSpec m;
     m.name = d.name;
-    m.representation = "blended_surface";
+    m.representation = "surface_first";
     m.fibre_template = d.fibre_template;
     const double volume = d.ward.mass_g / 1.056 * 1e-6;  // m³
     Belly belly = make_belly(d.belly_top, d.belly_bottom, volume, d.flat, muscle_resolution, 8);

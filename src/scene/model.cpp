@@ -2,6 +2,7 @@
 #include "fascicle/scene/model.hpp"
 
 #include "fascicle/core/error.hpp"
+#include "fascicle/core/parallel.hpp"
 #include "fascicle/geometry/mass_properties.hpp"
 #include "fascicle/scene/names.hpp"
 
@@ -237,6 +238,18 @@ Model compile(const SceneSpec& spec, const Registry& registry) {
     model.skeleton = std::make_unique<const Skeleton>(fascicle::compile(make_skeleton_spec(model, skeleton_joints)));
   }
 
+  // Bone queries in the default pose (ground frame), for representations that keep muscles out of
+  // bones. Built in parallel: an Embree scene per body mesh.
+  parallel_for(model.bodies.size(), [&](size_t b) {
+    Body& body = model.bodies[b];
+    if (body.mesh.V.rows() == 0) return;
+    const Transform& X = model.X_ground_body_default[b];
+    TriMesh placed{((body.mesh.V * X.linear().transpose()).rowwise() + X.translation().transpose()).eval(),
+                   body.mesh.F};
+    for (Eigen::Index i = 0; i < placed.V.rows(); ++i) body.rest_box.extend(placed.V.row(i).transpose());
+    body.rest_query = std::make_shared<const MeshQuery>(placed);
+  });
+
   // Muscles: attachments, via points, actuator, then the representation (needs the rest of the Model).
   for (const MuscleSpec& ms : spec.muscles) {
     if (ms.name.empty() || find_by_name(model.muscles, ms.name) >= 0)
@@ -280,15 +293,18 @@ Model compile(const SceneSpec& spec, const Registry& registry) {
     m.options = ms.options;
     model.muscles.push_back(std::move(m));
   }
-  for (size_t i = 0; i < spec.muscles.size(); ++i) {
+  // Representations bind each muscle in the rest pose (for surface_first: a sparse factorisation
+  // and bone-depth queries per muscle), independently: in parallel over muscles.
+  std::vector<std::unique_ptr<const MuscleRepresentation>> reps(spec.muscles.size());
+  parallel_for(spec.muscles.size(), [&](size_t i) {
     const auto& factory = registry.muscle_representations.get(spec.muscles[i].representation);
     try {
-      auto rep = factory(model, MuscleIndex{static_cast<int32_t>(i)});
-      model.muscles[i].representation = std::move(rep);
+      reps[i] = factory(model, MuscleIndex{static_cast<int32_t>(i)});
     } catch (const Error& e) {
       throw e.with_object(spec.muscles[i].name);
     }
-  }
+  });
+  for (size_t i = 0; i < reps.size(); ++i) model.muscles[i].representation = std::move(reps[i]);
   return model;
 }
 

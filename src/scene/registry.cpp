@@ -109,6 +109,7 @@ void register_builtins(Registry& r) {
   r.joint_types.add("hinge", make_pin_joint);
   r.joint_types.add("slider", make_slider_joint);
   r.joint_types.add("free", make_free_joint);
+  r.muscle_representations.add("surface_first", make_surface_first);
   r.muscle_representations.add("blended_surface", make_blended_surface);
   r.muscle_representations.add("action_line", make_action_line_only);
   r.actuators.add("hill", make_hill_actuator);

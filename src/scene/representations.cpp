@@ -105,7 +105,8 @@ class BlendedSurface final : public MuscleRepresentation {
     for (const Points3& f : m.rest_fibres) fibres_.push_back(bind_points(f, model, m, line));
   }
 
-  void calc_geometry(const Model& model, MuscleIndex mi, const State& state, MuscleFrame& out) const override {
+  void calc_geometry(const Model& model, MuscleIndex mi, const State& state, RepresentationState*,
+                     MuscleFrame& out) const override {
     const Muscle& m = model.get_muscle(mi);
     // Rigid motion of each body from the default pose: T_b = X_ground_b · X_ground_b(default)⁻¹.
     std::vector<Transform> T(model.bodies.size());
@@ -126,7 +127,7 @@ class BlendedSurface final : public MuscleRepresentation {
 
 class ActionLineOnly final : public MuscleRepresentation {
  public:
-  void calc_geometry(const Model&, MuscleIndex, const State&, MuscleFrame& out) const override {
+  void calc_geometry(const Model&, MuscleIndex, const State&, RepresentationState*, MuscleFrame& out) const override {
     out.surface.resize(0, 3);
     out.fibres.clear();
   }

@@ -4,6 +4,7 @@
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/parallel.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 namespace fascicle {
@@ -33,6 +34,10 @@ State make_state(const Model& model) {
   s.q = model.default_q;
   s.X_ground_body.assign(model.bodies.size(), Transform::Identity());
   s.muscles.resize(model.muscles.size());
+  s.representation_states.resize(model.muscles.size());
+  for (size_t m = 0; m < model.muscles.size(); ++m)
+    if (model.muscles[m].representation)
+      s.representation_states[m] = model.muscles[m].representation->make_state();
   s.skeleton.emplace(*model.skeleton);
   return s;
 }
@@ -88,9 +93,58 @@ void calc_muscle_geometry(const Model& model, State& state) {
   require_stage(state, Stage::forces, "calc_muscle_geometry");
   for_each_muscle(model, [&](int m) {
     MuscleFrame& out = state.muscles[m];
-    model.muscles[m].representation->calc_geometry(model, MuscleIndex{m}, state, out);
+    if (state.representation_states.size() != model.muscles.size())
+      throw_internal("calc_muscle_geometry: the State was not made by make_state() for this Model");
+    model.muscles[m].representation->calc_geometry(model, MuscleIndex{m}, state,
+                                                   state.representation_states[m].get(), out);
   });
+  calc_muscle_overlaps(model, state);
   state.stage = Stage::geometry;
+}
+
+void calc_muscle_overlaps(const Model& model, State& state) {
+  const size_t n = model.muscles.size();
+  // Broad phase: bounding boxes of the closed surfaces of this frame.
+  std::vector<Eigen::AlignedBox3d> box(n);
+  std::vector<char> closed(n, 0);
+  for (size_t m = 0; m < n; ++m) {
+    const Points3& V = state.muscles[m].surface;
+    closed[m] = V.rows() > 0 && V.rows() == model.muscles[m].rest_mesh.V.rows() &&
+                model.muscles[m].rest_mesh.F.rows() > 0;
+    if (!closed[m]) continue;
+    box[m] = Eigen::AlignedBox3d(V.colwise().minCoeff().transpose(), V.colwise().maxCoeff().transpose());
+  }
+  std::vector<std::vector<int>> others(n);
+  std::vector<char> needs_query(n, 0);
+  for (size_t a = 0; a < n; ++a)
+    for (size_t b = 0; b < n; ++b)
+      if (a != b && closed[a] && closed[b] && box[a].intersects(box[b])) {
+        others[a].push_back(static_cast<int>(b));
+        needs_query[b] = 1;
+      }
+  // Narrow phase: vertices of a inside surface b, exact inside test and distance to b's surface.
+  std::vector<std::unique_ptr<MeshQuery>> query(n);
+  parallel_for(n, [&](size_t b) {
+    if (needs_query[b]) query[b] = std::make_unique<MeshQuery>(TriMesh{state.muscles[b].surface, model.muscles[b].rest_mesh.F});
+  });
+  parallel_for(n, [&](size_t a) {
+    MuscleFrame& out = state.muscles[a];
+    if (!closed[a]) {
+      out.max_muscle_overlap_m = MuscleFrame::nan;
+      return;
+    }
+    double depth = 0.0;
+    for (int b : others[a]) {
+      const Points3& V = out.surface;
+      const Eigen::AlignedBox3d& bb = box[b];
+      for (Eigen::Index i = 0; i < V.rows(); ++i) {
+        const Vec3 p = V.row(i).transpose();
+        if (!bb.contains(p)) continue;
+        if (query[b]->calc_is_inside(p)) depth = std::max(depth, query[b]->calc_closest_point(p).distance);
+      }
+    }
+    out.max_muscle_overlap_m = depth;
+  });
 }
 
 void forward(const Model& model, State& state) {

@@ -109,6 +109,15 @@ class ParaViewWriter final : public FrameWriter {
           at += f.rows();
         }
         d.cell_fields.push_back({"fibre_length_m", length});
+        const auto n_fibres = static_cast<Eigen::Index>(mf.fibres.size());
+        if (mf.fibre_strain.size() == n_fibres) d.cell_fields.push_back({"fibre_strain", mf.fibre_strain});
+        if (mf.fibre_pennation_rad.size() == n_fibres)
+          d.cell_fields.push_back({"pennation_rad", mf.fibre_pennation_rad});
+        // Each fibre stands for an equal share of the muscle's cross-section: it carries that share
+        // of the Hill fibre force (active + passive).
+        const double fibre_force = mf.hill.active_fiber_force_N + mf.hill.passive_fiber_force_N;
+        if (std::isfinite(fibre_force))
+          d.cell_fields.push_back({"fibre_force_N", MatX::Constant(n_fibres, 1, fibre_force / static_cast<double>(n_fibres))});
         write("fibres_" + muscle.name, frame_file("fibres", muscle.name, frame), d);
       }
     }

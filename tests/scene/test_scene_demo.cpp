@@ -118,18 +118,30 @@ TEST(SceneDemo, RunWritesReadableSeriesAndTables) {
       EXPECT_EQ(p.point_fields[0].name, "displacement_m");
     } else {
       EXPECT_EQ(p.lines.size(), 8u);
-      ASSERT_EQ(p.cell_fields.size(), 1u);
+      ASSERT_GE(p.cell_fields.size(), 3u);
+      EXPECT_EQ(p.cell_fields[0].name, "fibre_length_m");
       EXPECT_GT(p.cell_fields[0].values.minCoeff(), 0.05);  // fibre lengths, m
+      EXPECT_EQ(p.cell_fields[1].name, "fibre_strain");
+      EXPECT_LT(p.cell_fields[1].values.cwiseAbs().maxCoeff(), 0.5);
     }
   }
   const Table sto = read_table(dir / "demo_muscles.sto");
   const Table csv = read_table(dir / "demo_muscles.csv");
   EXPECT_EQ(sto.rows(), 11);
   EXPECT_EQ(sto.labels, csv.labels);
-  EXPECT_EQ(sto.columns(), 4 * 11);
-  const long vol = find_column(sto, "soleus.relative_volume_change");
-  ASSERT_GE(vol, 0);
-  EXPECT_EQ(sto.data(0, vol) == 0.0, false);  // frame 0 is at ankle −20°: the interim blend changes volume
-  EXPECT_LT(sto.data.col(vol).cwiseAbs().maxCoeff(), 0.2);
+  EXPECT_EQ(sto.columns(), 4 * 15);
+  // The invariants of the surface-first representation at every frame, for every muscle: volume
+  // to 0.01 % and no bone penetration beyond the rest-pose contact deeper than 0.5 mm.
+  for (const auto& m : model.muscles) {
+    const long vol = find_column(sto, m.name + ".relative_volume_change");
+    const long pen = find_column(sto, m.name + ".max_bone_penetration_m");
+    const long len = find_column(sto, m.name + ".mean_fibre_length_m");
+    ASSERT_GE(vol, 0);
+    ASSERT_GE(pen, 0);
+    ASSERT_GE(len, 0);
+    EXPECT_LT(sto.data.col(vol).cwiseAbs().maxCoeff(), 1e-4) << m.name;
+    EXPECT_LE(sto.data.col(pen).maxCoeff(), 5e-4) << m.name;
+    EXPECT_GT(sto.data.col(len).minCoeff(), 0.05) << m.name;
+  }
   EXPECT_TRUE(fs::exists(dir / "summary.json"));
 }

@@ -158,7 +158,8 @@ namespace {
 class MidpointShift final : public MuscleRepresentation {
  public:
   explicit MidpointShift(Vec3 rest_mid) : rest_mid_(std::move(rest_mid)) {}
-  void calc_geometry(const Model& model, MuscleIndex m, const State&, MuscleFrame& out) const override {
+  void calc_geometry(const Model& model, MuscleIndex m, const State&, RepresentationState*,
+                     MuscleFrame& out) const override {
     const Points3& line = out.action_line;
     const Vec3 mid = 0.5 * (line.row(0) + line.row(line.rows() - 1)).transpose();
     out.surface = model.get_muscle(m).rest_mesh.V.rowwise() + (mid - rest_mid_).transpose();

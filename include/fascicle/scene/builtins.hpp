@@ -19,6 +19,15 @@ JointSpec make_free_joint(const SceneJointSpec& spec);
 // lengthening speed, for the spec's model and parameters.
 std::unique_ptr<const Actuator> make_hill_actuator(const MuscleSpec& spec);
 
+// "surface_first": the volume-preserving deformation of seed 002 §4 (deformation/surface_first.hpp):
+// the rest surface bound to the rest action line, attachment areas (vertices within the radius of
+// their landmarks) moving with their bodies, the volume held exactly, vertices kept out of every
+// body mesh near the muscle (beyond their rest-pose contact). Fibres: the muscle's rest fibres, or
+// the fibres module's template decomposition of the rest surface, carried by the deformation.
+// Options (scene "options"): line_weight, contact_weight, contact_margin (m), line_samples,
+// max_volume_error, max_contact_rounds, bone_margin (m, default 0.02), fibres (0: none),
+// fibre_count (60), fibre_resolution (15), fibre_weights (64).
+std::unique_ptr<const MuscleRepresentation> make_surface_first(const Model& model, MuscleIndex m);
 // "blended_surface": the interim deformation (docs/scene-format.md). Each rest vertex is bound to
 // the nearest segment of the rest action line; its motion is the blend (1−w)·T_a + w·T_b of the
 // rigid motions of the bodies at the segment's ends with w = smoothstep(s) of its position s along

@@ -4,6 +4,7 @@
 #pragma once
 
 #include "fascicle/core/types.hpp"
+#include "fascicle/geometry/mesh_query.hpp"
 #include "fascicle/geometry/tri_mesh.hpp"
 #include "fascicle/scene/ids.hpp"
 #include "fascicle/scene/registry.hpp"
@@ -25,6 +26,10 @@ struct Body {
   Mat3 inertia = Mat3::Zero();     // kg m², about the centre of mass, body axes
   double mesh_volume_m3 = 0.0;     // enclosed volume of the mesh (0 without a mesh)
   JointIndex joint;                // the joint whose child this body is (invalid for ground)
+  // Closest-point / inside queries on the mesh placed in ground at the default pose (null without
+  // a mesh): what muscles bound in the rest pose test against, moved by the body's motion.
+  std::shared_ptr<const MeshQuery> rest_query;
+  Eigen::AlignedBox3d rest_box;    // bounding box of that placed mesh (empty without a mesh)
 };
 
 struct Joint {

@@ -31,14 +31,26 @@ struct MuscleFrame;
 // skeleton joint, e.g. an OpenSim-style custom joint with coordinate functions.
 using JointFactory = std::function<JointSpec(const SceneJointSpec&)>;
 
+// Mutable per-muscle data a representation carries from frame to frame (a prefactorised solver,
+// the previous frame's solution as a warm start). Created by MuscleRepresentation::make_state()
+// when a State is made; owned by that State (State::representation_states).
+class RepresentationState {
+ public:
+  virtual ~RepresentationState() = default;
+};
+
 // What a muscle looks like at a frame: given the posed bodies and the muscle's action line
-// (State stage >= action lines), fill `out.surface` (and optionally `out.fibres`, `out.volume_m3`).
-// Constructed in compile() once the bodies, joints, attachments and default pose are known.
+// (State stage >= action lines), fill `out.surface` (and optionally `out.fibres`, `out.volume_m3`
+// and the other geometric metrics of MuscleFrame). Constructed in compile() once the bodies,
+// joints, attachments and default pose are known; immutable afterwards, so one Model can drive
+// several States. Frame-to-frame data lives in `rs`, what make_state() returned (may be null).
 class MuscleRepresentation {
  public:
   virtual ~MuscleRepresentation() = default;
+  // The per-run state of this muscle (null: the representation keeps none).
+  virtual std::unique_ptr<RepresentationState> make_state() const { return nullptr; }
   virtual void calc_geometry(const Model& model, MuscleIndex muscle, const State& state,
-                             MuscleFrame& out) const = 0;
+                             RepresentationState* rs, MuscleFrame& out) const = 0;
 };
 using MuscleRepresentationFactory = std::function<std::unique_ptr<const MuscleRepresentation>(
     const Model& model, MuscleIndex muscle)>;
@@ -121,7 +133,7 @@ struct Registry {
 };
 
 // Joint types "weld", "pin" (alias "hinge"), "slider", "free"; muscle representations
-// "blended_surface", "action_line"; actuators "hill", "none"; writers "paraview", "sto", "csv".
+// "surface_first", "blended_surface", "action_line"; actuators "hill", "none"; writers "paraview", "sto", "csv".
 void register_builtins(Registry& registry);
 
 // A registry with the built-ins.

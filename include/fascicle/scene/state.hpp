@@ -9,6 +9,7 @@
 #include "fascicle/scene/model.hpp"
 
 #include <limits>
+#include <memory>
 #include <optional>
 #include <vector>
 
@@ -40,11 +41,14 @@ struct State {
   VecX q;                                  // #coordinates
   std::vector<Transform> X_ground_body;    // #bodies (valid from Stage::pose)
   std::vector<MuscleFrame> muscles;        // #muscles
+  // Per muscle: its representation's frame-to-frame data (null when it keeps none); made by
+  // make_state() from this Model, so a State is moved, not copied.
+  std::vector<std::unique_ptr<RepresentationState>> representation_states;
   Stage stage = Stage::none;
   std::optional<SkeletonState> skeleton;   // the skeleton module's per-frame state
 };
 
-// A state at the default coordinates, nothing computed.
+// A state at the default coordinates, nothing computed; each muscle's representation state made.
 State make_state(const Model& model);
 
 // Requires nothing; sets X_ground_body from q. Stage → pose.
@@ -53,8 +57,12 @@ void calc_pose(const Model& model, State& state);
 void calc_action_lines(const Model& model, State& state);
 // Requires Stage::action_lines. Hill outputs at each muscle's activation, in parallel.
 void calc_forces(const Model& model, State& state);
-// Requires Stage::forces. Muscle surfaces by each muscle's representation, in parallel.
+// Requires Stage::forces. Muscle surfaces by each muscle's representation, in parallel; then
+// the muscle-muscle overlap of every pair of surfaces whose bounding boxes meet
+// (MuscleFrame::max_muscle_overlap_m, 0 for a muscle that overlaps none).
 void calc_muscle_geometry(const Model& model, State& state);
+// The overlap part of calc_muscle_geometry (surfaces must be computed).
+void calc_muscle_overlaps(const Model& model, State& state);
 // All stages in order. A failure throws fascicle::Error naming the muscle.
 void forward(const Model& model, State& state);
 
