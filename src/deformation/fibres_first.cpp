@@ -52,6 +52,46 @@ double surface_volume(const FibreBundle& m, const Points3& S) {
   return calc_enclosed_volume(S, m.surface_triangles, S.colwise().mean().transpose());
 }
 
+// dV/dx per particle of muscle m (muscle-local rows; cap-centre terms shared by their ring).
+Points3 calc_particle_volume_gradient(const FibreBundle& m, const Points3& x, int P) {
+  const Points3 S = gather_surface(m, x, P);
+  const Points3 g = calc_volume_gradient(S, m.surface_triangles);
+  const int ns = static_cast<int>(m.surface_particles.size()), rings = ns / P;
+  Points3 out = Points3::Zero(m.num_particles, 3);
+  for (int j = 0; j < ns; ++j) {
+    Vec3 gj = g.row(j);
+    const int i = j % P;
+    if (i == 0) gj += g.row(ns).transpose() / rings;
+    if (i == P - 1) gj += g.row(ns + 1).transpose() / rings;
+    out.row(m.surface_particles[j] - m.first_particle) = gj.transpose();
+  }
+  return out;
+}
+
+// Moves the muscle's particles xm (muscle-local rows) to xm + t Y with t the root of the cubic
+// V(t) = V0 nearest to the linearised one (the exact volume along the line). Returns t (NaN: none).
+double hold_volume_along(const FibreBundle& m, int P, Points3& xm, const Points3& Y) {
+  const int ns = static_cast<int>(m.surface_particles.size()), rings = ns / P;
+  Points3 Sx(ns + 2, 3), Sy(ns + 2, 3);
+  for (int j = 0; j < ns; ++j) {
+    Sx.row(j) = xm.row(m.surface_particles[j] - m.first_particle);
+    Sy.row(j) = Y.row(m.surface_particles[j] - m.first_particle);
+  }
+  Sx.bottomRows(2).setZero();
+  Sy.bottomRows(2).setZero();
+  for (int k = 0; k < rings; ++k) {
+    Sx.row(ns) += Sx.row(k * P) / rings;
+    Sx.row(ns + 1) += Sx.row(k * P + P - 1) / rings;
+    Sy.row(ns) += Sy.row(k * P) / rings;
+    Sy.row(ns + 1) += Sy.row(k * P + P - 1) / rings;
+  }
+  const Vec3 centre = Sx.colwise().mean().transpose();
+  const double t = solve_volume_cubic(calc_volume_cubic(Sx, Sy, m.surface_triangles, centre),
+                                      m.rest_volume_m3);
+  if (std::isfinite(t)) xm += t * Y;
+  return t;
+}
+
 }  // namespace
 
 // One muscle's linear system: K = sum_springs k A^T A (free rows) + m/h^2 I (dynamic) + contact
@@ -65,6 +105,9 @@ struct MuscleSystem {
   std::vector<double> factored_weight;  // per free particle
   double factored_mass_term = 0.0;
   std::vector<double> weight;  // per free particle: contact weight wanted this iteration
+  // -K^-1 dV/dx (muscle-local rows, zero on fixed particles): the volume-correction direction,
+  // refreshed on the first iteration of every contact round
+  Points3 volume_direction;
 };
 
 struct MusclePair {
@@ -383,11 +426,12 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
       }
       parallel_for(static_cast<std::size_t>(nm), [&](std::size_t mi) {
         const FibreBundle& m = model.muscles[mi];
-        const MuscleSystem& sys = *ws.systems[mi];
+        MuscleSystem& sys = *ws.systems[mi];
         const int nf = static_cast<int>(m.free.size());
         const int base = m.first_particle;
         const bool volume = o.hold_volume && m.surface_triangles.rows() > 0;
-        Eigen::MatrixXd B = Eigen::MatrixXd::Zero(nf, volume ? 6 : 3);
+        const bool fresh = volume && (it == 0 || sys.volume_direction.rows() != m.num_particles);
+        Eigen::MatrixXd B = Eigen::MatrixXd::Zero(nf, fresh ? 6 : 3);
         // local step: every spring's rest-length vector along its current direction
         for (int s = model.first_spring[mi]; s < model.first_spring[mi + 1]; ++s) {
           const Spring& sp = model.springs[s];
@@ -411,48 +455,20 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
                                         : Vec3(ws.pair_target.row(p).transpose() / ws.pair_count[p]);
           B.row(j).head<3>() += sys.factored_weight[j] * target.transpose();
         }
-        // volume gradient at the current iterate (rows of free particles)
-        Points3 S;
-        if (volume) {
-          S = gather_surface(m, snapshot, P);
-          const Points3 g = calc_volume_gradient(S, m.surface_triangles);
-          const int ns = static_cast<int>(m.surface_particles.size()), rings = ns / P;
-          for (int j = 0; j < ns; ++j) {
-            Vec3 gj = g.row(j);
-            const int i = j % P;
-            if (i == 0) gj += g.row(ns).transpose() / rings;
-            if (i == P - 1) gj += g.row(ns + 1).transpose() / rings;
-            const int f = m.free_index[m.surface_particles[j] - base];
-            if (f >= 0) B.row(f).tail<3>() = gj.transpose();
-          }
+        // volume gradient at the current iterate (first iteration of a round only)
+        if (fresh) {
+          const Points3 g = calc_particle_volume_gradient(m, snapshot, P);
+          for (int j = 0; j < nf; ++j) B.row(j).tail<3>() = g.row(m.free[j] - base);
         }
         // global step, then the volume: x = x_u + t Y with Y = -K^-1 g, t the root of V(t) = V0
         const Eigen::MatrixXd Z = sys.ldlt.solve(B);
         Points3 xm = snapshot.middleRows(base, m.num_particles);
         for (int j = 0; j < nf; ++j) xm.row(m.free[j] - base) = Z.row(j).head<3>();
-        if (volume) {
-          Points3 Y = Points3::Zero(m.num_particles, 3);
-          for (int j = 0; j < nf; ++j) Y.row(m.free[j] - base) = -Z.row(j).tail<3>();
-          Points3 Sx(S.rows(), 3), Sy(S.rows(), 3);
-          const int ns = static_cast<int>(m.surface_particles.size()), rings = ns / P;
-          for (int j = 0; j < ns; ++j) {
-            Sx.row(j) = xm.row(m.surface_particles[j] - base);
-            Sy.row(j) = Y.row(m.surface_particles[j] - base);
-          }
-          Sx.bottomRows(2).setZero();
-          Sy.bottomRows(2).setZero();
-          for (int k = 0; k < rings; ++k) {
-            Sx.row(ns) += Sx.row(k * P) / rings;
-            Sx.row(ns + 1) += Sx.row(k * P + P - 1) / rings;
-            Sy.row(ns) += Sy.row(k * P) / rings;
-            Sy.row(ns + 1) += Sy.row(k * P + P - 1) / rings;
-          }
-          const Vec3 centre = Sx.colwise().mean().transpose();
-          const double t = solve_volume_cubic(calc_volume_cubic(Sx, Sy, m.surface_triangles, centre),
-                                              m.rest_volume_m3);
-          volume_failed[mi] = !std::isfinite(t);
-          if (std::isfinite(t)) xm += t * Y;
+        if (fresh) {
+          sys.volume_direction = Points3::Zero(m.num_particles, 3);
+          for (int j = 0; j < nf; ++j) sys.volume_direction.row(m.free[j] - base) = -Z.row(j).tail<3>();
         }
+        if (volume) volume_failed[mi] = !std::isfinite(hold_volume_along(m, P, xm, sys.volume_direction));
         double largest = 0.0;
         for (int j = 0; j < nf; ++j) {
           const int p = m.free[j];
@@ -483,6 +499,57 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
                       detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
     if (added == 0) break;
   }
+
+  // final projection (seed 002's rule, applied to the constraints the iterations left unmet):
+  // particles below their bone contact's target plane onto it, pairs of muscles still too close
+  // pushed apart; then each muscle's volume restored along its correction direction with those
+  // particles held
+  std::vector<char> held(N, 0);
+  detect_bone_contacts(ctx, x, ws.contact_bone, ws.contact_target_rest, ws.contact_normal_rest,
+                       true, nullptr);
+  for (int p = 0; p < N; ++p) {
+    const int b = ws.contact_bone[p];
+    if (b < 0) continue;
+    const Vec3 target = motions[b] * ws.contact_target_rest[p];
+    const Vec3 n = motions[b].linear() * ws.contact_normal_rest[p];
+    const double below = (target - Vec3(x.row(p).transpose())).dot(n);
+    if (below > 0.0) {
+      x.row(p) += below * n.transpose();
+      held[p] = 1;
+    }
+  }
+  detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
+  for (const MusclePair& pr : ws.pairs) {
+    const Vec3 d = x.row(pr.p) - x.row(pr.q);
+    const double dist = d.norm();
+    if (dist >= pr.allowed_m) continue;
+    const Vec3 n = dist > 1e-12 ? Vec3(d / dist)
+                                : Vec3((model.rest.row(pr.p) - model.rest.row(pr.q)).normalized());
+    const bool p_fixed = model.role[pr.p] == ParticleRole::fixed || held[pr.p];
+    const bool q_fixed = model.role[pr.q] == ParticleRole::fixed || held[pr.q];
+    if (p_fixed && q_fixed) continue;
+    const double share_p = p_fixed ? 0.0 : (q_fixed ? 1.0 : 0.5);
+    x.row(pr.p) += (share_p * (pr.allowed_m - dist) * n).transpose();
+    x.row(pr.q) -= ((1.0 - share_p) * (pr.allowed_m - dist) * n).transpose();
+  }
+  for (const MusclePair& pr : ws.pairs) held[pr.p] = held[pr.q] = 1;
+  if (o.hold_volume)
+    for (int mi = 0; mi < nm; ++mi) {
+      const FibreBundle& m = model.muscles[mi];
+      const MuscleSystem& sys = *ws.systems[mi];
+      if (m.surface_triangles.rows() == 0 || sys.volume_direction.rows() != m.num_particles) continue;
+      Points3 Y = sys.volume_direction;
+      for (int q = 0; q < m.num_particles; ++q)
+        if (held[m.first_particle + q]) Y.row(q).setZero();
+      Points3 xm = x.middleRows(m.first_particle, m.num_particles);
+      for (int k = 0; k < std::max(1, o.max_volume_iterations); ++k) {
+        const double V = surface_volume(m, gather_surface(m, x, P));
+        if (std::abs(V - m.rest_volume_m3) <= 1e-12 * m.rest_volume_m3) break;
+        ++info_.volume_iterations;
+        if (!std::isfinite(hold_volume_along(m, P, xm, Y))) break;
+        x.middleRows(m.first_particle, m.num_particles) = xm;
+      }
+    }
 
   // results and checks
   std::vector<FibreBundleFrame> frames(nm);
