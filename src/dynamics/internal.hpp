@@ -21,7 +21,10 @@ Transform get_body_pose(const std::vector<Transform>& X_now_rest, int b);
 // calc_forces reusing `out` (its stiffness keeps the pattern between calls).
 void calc_forces_into(const SolidDynamicsModel& model, const Points3& P, const Points3& V,
                       double activation, bool with_stiffness,
-                      const std::vector<Transform>& X_now_rest, ForceEvaluation& out);
+                      const std::vector<Transform>& X_now_rest, ForceEvaluation& out,
+                      double volume_hessian_scale = 0.0);
+// volume_hessian_scale: adds that multiple of the Hessian of V (by the model's quadrature) to the
+// stiffness only (the Lagrange multiplier or penalty pressure times ∂²V).
 
 // Volume and gradient (3#P interleaved).
 double calc_volume_and_flat_gradient(const SolidDynamicsModel& m, const Points3& P, VecX* grad);

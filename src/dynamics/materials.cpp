@@ -65,12 +65,24 @@ double calc_blemker_active(const BlemkerFibreParameters& p, double lambda) {
   return 9.0 * (l - 1.6) * (l - 1.6);
 }
 
+double calc_blemker_active_integral(const BlemkerFibreParameters& p, double lambda) {
+  const double l = lambda / p.lambda_opt;
+  if (l <= 0.4) return 0.0;
+  if (l < 0.6) return 3.0 * std::pow(l - 0.4, 3);
+  const double at06 = 0.024;
+  if (l <= 1.4) return at06 + (l - 0.6) - (4.0 / 3.0) * (std::pow(l - 1.0, 3) + 0.064);
+  const double at14 = at06 + 0.8 - (4.0 / 3.0) * 0.128;
+  if (l < 1.6) return at14 + 3.0 * (std::pow(l - 1.6, 3) + 0.008);
+  return at14 + 0.024;
+}
+
 StressAndEnergy calc_blemker_fibre(const BlemkerFibreParameters& p, const Mat3& F, const Vec3& a0,
                                    double activation, double fv) {
   const Vec3 Fa = F * a0;
   const double lambda = Fa.norm();
   StressAndEnergy out;
   out.energy_density_Pa = p.sigma_max_Pa * calc_blemker_passive_energy(p, lambda);
+  out.active_density_Pa = p.sigma_max_Pa * activation * fv * calc_blemker_active_integral(p, lambda);
   const double dWdl = p.sigma_max_Pa / p.lambda_opt *
                       (calc_blemker_passive(p, lambda) +
                        activation * calc_blemker_active(p, lambda) * fv);

@@ -80,6 +80,7 @@ StressAndEnergy calc_material(const SolidDynamicsSpec& s, const QuadraturePoint&
                                          : calc_blemker_fibre(s.fibre, F, q.fibre_rest,
                                                               activation, fv);
     out.energy_density_Pa += fib.energy_density_Pa;
+    out.active_density_Pa = fib.active_density_Pa;
     out.P += fib.P;
   } else if (!q.tendon && activation > 0.0) {
     // Contraction without a hyperelastic potential: the active fibre stress alone.
@@ -88,6 +89,7 @@ StressAndEnergy calc_material(const SolidDynamicsSpec& s, const QuadraturePoint&
     const double l = Fa.norm();
     const double dWdl = f.sigma_max_Pa / f.lambda_opt * activation * calc_blemker_active(f, l) * fv;
     out.P = (dWdl / l) * Fa * q.fibre_rest.transpose();
+    out.active_density_Pa = f.sigma_max_Pa * activation * fv * calc_blemker_active_integral(f, l);
   }
   return out;
 }
@@ -105,11 +107,12 @@ StressAndEnergy calc_material(const SolidDynamicsSpec& s, const QuadraturePoint&
 
 void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Points3& V,
                       double activation, bool with_stiffness, const std::vector<Transform>& X,
-                      ForceEvaluation& out) {
+                      ForceEvaluation& out, double volume_hessian_scale) {
   const int n = static_cast<int>(P.rows());
   const SolidDynamicsSpec& s = m.spec;
   out.force.setZero(3 * n);
   out.energy_J = 0.0;
+  out.active_energy_J = 0.0;
   if (with_stiffness) {
     if (out.stiffness.nonZeros() != 9 * m.block_ptr[n] || out.stiffness.rows() != 3 * n)
       out.stiffness = make_pattern_matrix(m);
@@ -125,7 +128,8 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
   }
 
   // Material terms by quadrature.
-  const bool any_material = s.hyperelastic || activation > 0.0;
+  const bool any_material = s.hyperelastic || activation > 0.0 ||
+                            (with_stiffness && volume_hessian_scale != 0.0);
   const double vmax = s.max_fibre_strain_rate_1_s * s.fibre.lambda_opt;
   std::array<Mat3, 9> dP;  // dP/dF_{kl}, k + 3 l
   std::vector<Mat3> T;     // per support point and k: Σ_l dP/dF_kl g_b[l]
@@ -147,6 +151,7 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
     }
     const StressAndEnergy se = calc_material(s, q, F, activation, fv);
     out.energy_J += q.weight_m3 * se.energy_density_Pa;
+    out.active_energy_J += q.weight_m3 * se.active_density_Pa;
     for (int a = 0; a < q.count; ++a)
       out.force.segment<3>(3 * idx[a]) -= q.weight_m3 * (se.P * g[a]);
     if (!K) continue;
@@ -160,6 +165,19 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
         dP[k + 3 * l] = (calc_material(s, q, Fp, activation, fv).P -
                          calc_material(s, q, Fm, activation, fv).P) / (2.0 * h);
       }
+    // Volume curvature: ∂cof(F)_ai/∂F_kl = ε_akc ε_ilm F_cm (det F = the volume density).
+    if (volume_hessian_scale != 0.0) {
+      auto eps = [](int a, int b, int c) { return static_cast<double>((a - b) * (b - c) * (c - a)) / 2.0; };
+      for (int l = 0; l < 3; ++l)
+        for (int k = 0; k < 3; ++k)
+          for (int a2 = 0; a2 < 3; ++a2)
+            for (int i = 0; i < 3; ++i) {
+              double v = 0.0;
+              for (int c = 0; c < 3; ++c)
+                for (int mm = 0; mm < 3; ++mm) v += eps(a2, k, c) * eps(i, l, mm) * F(c, mm);
+              dP[k + 3 * l](a2, i) += volume_hessian_scale * v;
+            }
+    }
     // K_ab(i,k) = w Σ_jl g_a[j] dP_ij/dF_kl g_b[l]: T_bk = w Σ_l dP/dF_kl g_b[l] (3x3 in i,j),
     // then column k of block (a,b) is T_bk g_a.
     T.resize(static_cast<std::size_t>(3 * q.count));

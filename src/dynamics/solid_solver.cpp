@@ -7,6 +7,7 @@
 
 #include <Eigen/SparseCholesky>
 #include <fmt/format.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <cmath>
@@ -31,6 +32,7 @@ struct SolidDynamicsSolver::Workspace {
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower> ldlt;
   bool analysed = false;
   double size_m = 1.0;
+  double last_lambda = 0.0;  // multiplier of the exact volume constraint (warm start)
 };
 
 namespace {
@@ -176,7 +178,15 @@ StepReport SolidDynamicsSolver::step(double dt, const StepInputs& in) {
                                   "is kept", m.rest.name, state_.time_s),
                       {.object = m.rest.name, .suggestion = "reduce the time step or use backward Euler"});
     }
-    const double E = calc_energies(m, trial, in.X_now_rest).total();
+    double E = NAN;
+    try {
+      E = calc_energies(m, trial, in.X_now_rest).total();
+    } catch (const Error& e) {
+      if (e.kind() != ErrorKind::numerical) throw;
+      throw_numerical(fmt::format("solid '{}' at t = {:.6g} s: {}; the last good state is kept",
+                                  m.rest.name, state_.time_s, e.message()),
+                      e.context());
+    }
     const double bound = initial_energy_ + options_.energy_blowup_factor *
                                                (std::abs(initial_energy_) + m.mass_kg * 1.0);
     if (!std::isfinite(E) || E > bound) {
@@ -266,42 +276,56 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   for (int i = 0; i < 3 * n; ++i)
     if (w.fixed_dof[i]) x[i] = target[i];
   const Points3 V_start = s.V;  // force–velocity factor frozen over the step
-  double c_rank = 0.0;          // Gauss–Newton rank-one term of the volume penalty
-  if (sp.volume == VolumeMethod::penalty)
-    c_rank = sp.volume_stiffness_Pa / V0 + (quasi ? 0.0 : sp.volume_damping_Pa_s / (V0 * h));
+  // Volume: the penalty enters with its Gauss–Newton rank-one Hessian c g gᵀ (Sherman–Morrison);
+  // its damping acts on (V − V_n)/h so that it has the potential d/(2 V0 h) (V − V_n)². The exact
+  // constraint enters Newton as a Lagrange multiplier λ on the linearised constraint
+  // g·Δx = −(V − V0) (the projection after the step only removes the last rounding).
+  const bool penalty = sp.volume == VolumeMethod::penalty;
+  const bool exact = sp.volume == VolumeMethod::exact;
+  const double d_vol = (penalty && !quasi) ? sp.volume_damping_Pa_s / (V0 * h) : 0.0;
+  const double c_rank = penalty ? sp.volume_stiffness_Pa / V0 + d_vol : 0.0;
+  const double V_n = (d_vol > 0.0) ? calc_volume_and_flat_gradient(m, s.P, nullptr) : 0.0;
+  double lambda = exact ? w.last_lambda : 0.0;
+  // Pressure times the volume Hessian, for the stiffness (full Newton instead of Gauss–Newton).
+  auto volume_curvature = [&]() {
+    if (exact) return lambda;
+    if (penalty) return sp.volume_stiffness_Pa * (w.fe.volume_m3 - V0) / V0 +
+                        d_vol * (w.fe.volume_m3 - V_n);
+    return 0.0;
+  };
   auto merit = [&](const VecX& xx, const ForceEvaluation& fe) {
     const VecX dx = xx - x_tilde;
-    double phi = 0.5 * inertia / (h * h) * dx.dot(apply_mass(m.mass_matrix, dx)) + fe.energy_J -
-                 f_ext.dot(xx);
+    double phi = 0.5 * inertia / (h * h) * dx.dot(apply_mass(m.mass_matrix, dx)) + fe.energy_J +
+                 fe.active_energy_J - f_ext.dot(xx);
     if (has_D && !quasi) {
       const VecX d = xx - x_n;
       phi += 0.5 / h * d.dot(apply_lower(w.D, d));
     }
+    if (d_vol > 0.0) phi += 0.5 * d_vol * (fe.volume_m3 - V_n) * (fe.volume_m3 - V_n);
+    if (exact) phi += lambda * (fe.volume_m3 - V0);  // the Lagrangian at the current multiplier
     return phi;
   };
   const double tol = options_.newton_tolerance * w.size_m;
-  calc_forces_into(m, unflatten_points(x), V_start, a, true, in.X_now_rest, w.fe);
+  calc_forces_into(m, unflatten_points(x), V_start, a, false, in.X_now_rest, w.fe);
   bool factored = false;
   bool converged = false;
-  double phi = merit(x, w.fe);
   for (int it = 0; it < options_.max_newton_iterations; ++it) {
     ++rep.newton_iterations;
     const VecX d = x - x_n;
     VecX r = inertia / (h * h) * apply_mass(m.mass_matrix, x - x_tilde) - w.fe.force - f_ext;
     if (has_D && !quasi) r += apply_lower(w.D, d) / h;
     VecX g;
-    if (c_rank > 0.0) {
+    if (penalty || exact) {
       g = w.fe.volume_gradient;
       for (int i = 0; i < 3 * n; ++i)
-        if (w.fixed_dof[i]) g[i] = 0.0;
-      if (!quasi && sp.volume_damping_Pa_s > 0.0)
-        r += (sp.volume_damping_Pa_s * g.dot(d) / (V0 * h)) * g;
+        if (w.fixed_dof[i]) g[i] = 0.0;  // masked: the attachments hold those points
+      if (d_vol > 0.0) r += (d_vol * (w.fe.volume_m3 - V_n)) * g;
     }
     for (int i = 0; i < 3 * n; ++i)
       if (w.fixed_dof[i]) r[i] = 0.0;
-    rep.residual = r.lpNorm<Eigen::Infinity>();
     if (!factored || options_.refresh_stiffness) {
-      if (it > 0) calc_forces_into(m, unflatten_points(x), V_start, a, true, in.X_now_rest, w.fe);
+      calc_forces_into(m, unflatten_points(x), V_start, a, true, in.X_now_rest, w.fe,
+                       volume_curvature());
       Eigen::Map<VecX> Av(w.A.valuePtr(), w.A.nonZeros());
       Av = Eigen::Map<const VecX>(w.fe.stiffness.valuePtr(), Av.size()) +
            (inertia / (h * h)) * w.inertia_values;
@@ -319,12 +343,23 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
       factored = true;
     }
     VecX y = w.ldlt.solve(-r);
-    if (c_rank > 0.0) {
+    if (penalty) {
       const VecX z = w.ldlt.solve(g);
       y -= (c_rank * g.dot(y) / (1.0 + c_rank * g.dot(z))) * z;
+    } else if (exact) {
+      const VecX z = w.ldlt.solve(g);
+      const double gz = g.dot(z);
+      if (gz > 0.0) {
+        lambda = (g.dot(y) + (w.fe.volume_m3 - V0)) / gz;
+        y -= lambda * z;
+      }
+      r += lambda * g;
     }
+    rep.residual = r.lpNorm<Eigen::Infinity>();
     if (!y.allFinite()) throw_numerical("the Newton step is not finite");
-    // Backtracking line search on the incremental potential; inverted trials are rejected.
+    // Backtracking line search on the incremental potential (the Lagrangian for the exact
+    // constraint); inverted trials are rejected.
+    double phi = merit(x, w.fe);
     double alpha = 1.0;
     bool accepted = false;
     ForceEvaluation trial_fe;
@@ -337,13 +372,12 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
         throw;
       }
       const double phi_t = merit(xt, trial_fe);
-      // The volume damping and penalty rank-one parts are not all in the merit: accept small
-      // increases relative to its size.
-      if (phi_t <= phi + 1e-9 * std::abs(phi) + 1e-12 || alpha * y.lpNorm<Eigen::Infinity>() < tol) {
+      if (phi_t <= phi + 1e-10 * std::abs(phi) + 1e-14 ||
+          alpha * y.lpNorm<Eigen::Infinity>() < tol) {
         x = xt;
-        phi = phi_t;
         std::swap(w.fe.force, trial_fe.force);
         w.fe.energy_J = trial_fe.energy_J;
+        w.fe.active_energy_J = trial_fe.active_energy_J;
         w.fe.volume_m3 = trial_fe.volume_m3;
         std::swap(w.fe.volume_gradient, trial_fe.volume_gradient);
         accepted = true;
@@ -351,13 +385,18 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
       }
     }
     if (!accepted) {
-      // No decrease along the step: inverted everywhere along it, or a poor modified-Newton
-      // direction. A smaller time step usually cures both.
+      // Already at the solution within rounding: the merit cannot decrease any more.
+      if (y.lpNorm<Eigen::Infinity>() < 100.0 * tol) {
+        converged = true;
+        break;
+      }
       auto inv = find_inverted_point(m, unflatten_points(x + y));
       throw_numerical(inv ? fmt::format("Newton step inverts the solid at material point ({:.4f}, "
                                         "{:.4f}, {:.4f})", (*inv)[0], (*inv)[1], (*inv)[2])
                           : std::string("Newton line search failed"));
     }
+    spdlog::trace("solid '{}' Newton {}: |r| {:.3e} N, |dx| {:.3e} m, alpha {}, lambda {:.4g} Pa",
+                  m.rest.name, it, rep.residual, y.lpNorm<Eigen::Infinity>(), alpha, lambda);
     if (alpha * y.lpNorm<Eigen::Infinity>() < tol) {
       converged = true;
       break;
@@ -369,6 +408,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   s.P = unflatten_points(x);
   s.V = quasi ? Points3::Zero(n, 3) : unflatten_points((x - x_n) / h);
   project_volume(s, s, h, rep);
+  w.last_lambda = lambda;
   s.activation = a;
   s.time_s += h;
   rep.substeps = 1;

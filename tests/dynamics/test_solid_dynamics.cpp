@@ -4,8 +4,11 @@
 #include "fascicle/dynamics/solid_dynamics.hpp"
 
 #include <gtest/gtest.h>
+#include <spdlog/spdlog.h>
 
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <memory>
 
 namespace fascicle {
@@ -162,6 +165,214 @@ TEST(SolidIntegrators, FreeFall) {
     EXPECT_NEAR(drop, 0.5 * 9.81 * t * t, 0.5 * 9.81 * h * t + 1e-12);
     EXPECT_LT(solver.get_state().P.col(0).cwiseAbs().maxCoeff(), 0.02 + 1e-9);
   }
+}
+
+}  // namespace
+}  // namespace fascicle
+
+namespace fascicle {
+namespace {
+
+Points3 rotate_about_centre(const Points3& P, const Mat3& R, const Vec3& c) {
+  Points3 out = P;
+  for (Eigen::Index i = 0; i < P.rows(); ++i) out.row(i) = (R * (P.row(i).transpose() - c) + c).transpose();
+  return out;
+}
+
+// Spinning free solid: symplectic Euler keeps the energy to O(h) (bounded oscillation), backward
+// Euler dissipates O(h); halving h halves both errors.
+TEST(SolidIntegrators, RigidRotationEnergyWithinOrder) {
+  const BSplineSolid box = make_box({3, 3, 4});
+  SolidDynamicsSpec spec = make_free_spec();
+  spec.gravity_m_s2.setZero();
+  spec.mass = MassLumping::lumped;  // the explicit integrator's mass (energies use the model's)
+  auto m = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(box, spec));
+  const Vec3 c(0.01, 0.01, 0.02);
+  const Vec3 omega(0.0, 0.0, 3.0);  // rad/s about the long axis
+  SolidState s0;
+  s0.P = box.P;
+  s0.V = Points3(box.P.rows(), 3);
+  for (Eigen::Index i = 0; i < box.P.rows(); ++i)
+    s0.V.row(i) = omega.cross(box.P.row(i).transpose() - c).transpose();
+  auto drift = [&](Integrator integ, double h) {
+    SolverOptions o;
+    o.integrator = integ;
+    o.explicit_safety = 1e9;  // fixed step h (below the stability limit here)
+    SolidDynamicsSolver solver(m, o);
+    solver.set_state(s0);
+    const double E0 = calc_energies(*m, s0).total();
+    double worst = 0.0;
+    const int steps = static_cast<int>(std::round(0.06 / h));
+    for (int k = 0; k < steps; ++k) {
+      solver.step(h, {});
+      const double E = calc_energies(*m, solver.get_state()).total();
+      worst = std::max(worst, std::abs(E - E0) / E0);
+    }
+    return worst;
+  };
+  const double wmax = calc_max_frequency(*m, box.P, 0.0);
+  const double h = 0.2 / wmax;  // 10% of the stability limit 2/ω_max
+  const double se1 = drift(Integrator::symplectic_euler, h);
+  const double se2 = drift(Integrator::symplectic_euler, h / 2);
+  const double be1 = drift(Integrator::backward_euler, 20 * h);
+  const double be2 = drift(Integrator::backward_euler, 10 * h);
+  EXPECT_LT(se1, 0.05);
+  EXPECT_GT(se1 / se2, 1.6);
+  EXPECT_LT(se1 / se2, 2.5);
+  EXPECT_GT(be1 / be2, 1.6);
+  EXPECT_LT(be1 / be2, 2.5);
+  std::printf("energy drift: symplectic %.3e / %.3e, backward %.3e / %.3e (h = %.3e s)\n", se1, se2,
+              be1, be2, h);
+}
+
+TEST(SolidIntegrators, StretchedSolidReturnsToRest) {
+  const BSplineSolid box = make_box();
+  SolidDynamicsSpec spec = make_free_spec();
+  spec.gravity_m_s2.setZero();
+  spec.rayleigh_alpha_1_s = 30.0;
+  spec.volume = VolumeMethod::exact;
+  auto m = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(box, spec));
+  SolidDynamicsSolver solver(m);
+  SolidState s;
+  s.P = box.P;
+  s.P.col(2) *= 1.25;
+  s.P.col(0) *= 0.9;
+  s.P.col(1) *= 0.9;  // ~1% volume change: the projection restores it on the first step
+  s.V = Points3::Zero(box.P.rows(), 3);
+  solver.set_state(s);
+  const Vec3 com_shift = ((m->lumped_mass.transpose() * (s.P - box.P)) / m->mass_kg).transpose();
+  for (int k = 0; k < 150; ++k) solver.step(0.005, {});
+  // Rest shape up to a rigid motion: compare after removing the (zero) mean drift.
+  const Points3& P = solver.get_state().P;
+  const Vec3 shift = ((m->lumped_mass.transpose() * (P - box.P)) / m->mass_kg).transpose();
+  double err = 0.0;
+  for (Eigen::Index i = 0; i < P.rows(); ++i)
+    err = std::max(err, (P.row(i) - box.P.row(i) - shift.transpose()).norm());
+  EXPECT_LT(err, 1e-5) << "max deviation from the rest shape (m)";
+  EXPECT_LT((shift - com_shift).norm(), 1e-9);  // internal forces keep the centre of mass
+  EXPECT_NEAR(solver.calc_metrics({}).volume_error, 0.0, 1e-6);
+}
+
+struct ImposedResult {
+  double worst_volume_error = 0.0;
+  double final_stretch = 0.0;
+};
+
+ImposedResult run_imposed(VolumeMethod method, double k) {
+  const BSplineSolid box = make_box();
+  SolidDynamicsSpec spec = make_free_spec();
+  spec.volume = method;
+  spec.volume_stiffness_Pa = k;
+  spec.volume_damping_Pa_s = 0.01 * k;
+  spec.rayleigh_alpha_1_s = 10.0;
+  spec.attachments.push_back({"origin", -1, find_end_layer(box, 0)});
+  spec.attachments.push_back({"insertion", 0, find_end_layer(box, 1)});
+  auto m = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(box, spec));
+  SolidDynamicsSolver solver(m);
+  if (std::getenv("FASCICLE_DEBUG_DYN")) spdlog::set_level(spdlog::level::trace);
+  ImposedResult out;
+  const int steps = 60;
+  for (int k2 = 1; k2 <= steps; ++k2) {
+    const double s = static_cast<double>(std::min(k2, 40)) / 40.0;
+    StepInputs in;
+    Transform X = Transform::Identity();
+    // Insertion: pulled 40% along the axis, sheared 1 cm and twisted 40 degrees.
+    X.translate(Vec3(0.01 * s, 0.0, 0.016 * s));
+    X.translate(Vec3(0.01, 0.01, 0.04));
+    X.rotate(Eigen::AngleAxisd(0.7 * s, Vec3::UnitZ()));
+    X.translate(-Vec3(0.01, 0.01, 0.04));
+    in.X_now_rest = {X};
+    const StepReport rep = solver.step(0.005, in);
+    if (std::getenv("FASCICLE_DEBUG_DYN"))
+      std::printf("step %d: newton %d halvings %d residual %.3e\n", k2, rep.newton_iterations,
+                  rep.halvings, rep.residual);
+    const SolidMetrics mm = solver.calc_metrics(in);
+    out.worst_volume_error = std::max(out.worst_volume_error, std::abs(mm.volume_error));
+    out.final_stretch = mm.mean_fibre_stretch;
+  }
+  return out;
+}
+
+TEST(SolidVolume, ExactConstraintUnderLargeImposedDeformation) {
+  const ImposedResult r = run_imposed(VolumeMethod::exact, 0.0);
+  EXPECT_GT(r.final_stretch, 1.3);
+  EXPECT_LT(r.worst_volume_error, 1e-5);
+}
+
+TEST(SolidVolume, PenaltyWithinOnePercent) {
+  const ImposedResult r = run_imposed(VolumeMethod::penalty, 1e6);
+  const ImposedResult none = run_imposed(VolumeMethod::none, 0.0);
+  EXPECT_LT(r.worst_volume_error, 0.01);
+  EXPECT_GT(none.worst_volume_error, 5 * r.worst_volume_error);  // the penalty does the work
+  std::printf("volume error: penalty %.3e, none %.3e\n", r.worst_volume_error,
+              none.worst_volume_error);
+}
+
+TEST(SolidIntegrators, BlowUpIsANumericalErrorAndKeepsTheLastGoodState) {
+  const BSplineSolid box = make_box({3, 3, 4});
+  SolidDynamicsSpec spec = make_free_spec();
+  spec.ground.c1_Pa = 1e6;
+  spec.gravity_m_s2.setZero();
+  auto m = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(box, spec));
+  SolverOptions o;
+  o.integrator = Integrator::symplectic_euler;
+  o.explicit_safety = 1e9;  // fixed steps, 5 x past the stability limit 2/ω_max
+  o.max_step_halvings = 0;
+  const double h = 10.0 / calc_max_frequency(*m, box.P, 0.0);
+  SolidDynamicsSolver solver(m, o);
+  SolidState s;
+  s.P = box.P;
+  s.P(5, 0) += 1e-4;  // a small perturbation grows exponentially
+  s.V = Points3::Zero(box.P.rows(), 3);
+  solver.set_state(s);
+  double last_good_time = 0.0;
+  try {
+    for (int k = 0; k < 1000; ++k) {
+      solver.step(h, {});
+      last_good_time = solver.get_state().time_s;
+    }
+    FAIL() << "no error from a diverging explicit integration";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::numerical);
+    const std::string msg = e.what();
+    EXPECT_TRUE(msg.find("blow-up") != std::string::npos || msg.find("NaN") != std::string::npos ||
+                msg.find("inverted") != std::string::npos) << msg;
+    EXPECT_NE(msg.find("last good state"), std::string::npos) << msg;
+  }
+  EXPECT_EQ(solver.get_state().time_s, last_good_time);
+  EXPECT_TRUE(solver.get_state().P.allFinite());
+}
+
+TEST(SolidIntegrators, QuasiStaticContractionIsAnEquilibrium) {
+  const BSplineSolid box = make_box();
+  SolidDynamicsSpec spec = make_free_spec();
+  spec.gravity_m_s2.setZero();
+  spec.attachments.push_back({"origin", -1, find_end_layer(box, 0)});
+  spec.attachments.push_back({"insertion", -1, find_end_layer(box, 1)});
+  spec.tendon_fraction_start = spec.tendon_fraction_end = 0.2;
+  spec.volume = VolumeMethod::exact;
+  auto m = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(box, spec));
+  SolverOptions o;
+  o.integrator = Integrator::quasi_static;
+  SolidDynamicsSolver solver(m, o);
+  StepInputs in;
+  in.excitation = 1.0;
+  for (int k = 0; k < 20; ++k) solver.step(0.01, in);
+  const SolidState& s = solver.get_state();
+  EXPECT_GT(s.activation, 0.99);
+  // Free forces vanish (equilibrium) up to the volume constraint force along ∇V.
+  const ForceEvaluation fe = calc_forces(*m, s.P, {}, s.activation, false);
+  VecX f = fe.force, g = fe.volume_gradient;
+  for (int i = 0; i < f.size(); ++i)
+    if (m->fixed[i / 3]) f[i] = g[i] = 0.0;
+  const double mu = f.dot(g) / g.dot(g);
+  const double peak = calc_internal_forces(*m, s.P, s.activation).lpNorm<Eigen::Infinity>();
+  EXPECT_GT(peak, 1.0);
+  EXPECT_LT((f - mu * g).lpNorm<Eigen::Infinity>(), 1e-5 * peak);
+  // The belly shortens, the tendons stretch, the volume is kept.
+  const SolidMetrics mm = solver.calc_metrics(in);
+  EXPECT_LT(mm.mean_fibre_stretch, 0.97);
+  EXPECT_NEAR(mm.volume_error, 0.0, 1e-6);
 }
 
 }  // namespace

@@ -35,7 +35,8 @@ struct BlemkerFibreParameters {
 };
 
 struct StressAndEnergy {
-  double energy_density_Pa = 0.0;  // J/m^3
+  double energy_density_Pa = 0.0;  // J/m^3 (stored elastic energy)
+  double active_density_Pa = 0.0;  // J/m^3, potential of the active stress at fixed a and fv
   Mat3 P = Mat3::Zero();           // first Piola–Kirchhoff stress, Pa
 };
 
@@ -46,6 +47,9 @@ StressAndEnergy calc_mooney_rivlin(const MooneyRivlinParameters& p, const Mat3& 
 double calc_blemker_passive(const BlemkerFibreParameters& p, double lambda);
 double calc_blemker_passive_energy(const BlemkerFibreParameters& p, double lambda);  // ∫ f dλ
 double calc_blemker_active(const BlemkerFibreParameters& p, double lambda);
+// ∫_0^λ̂ f_active dλ̂' (dimensionless): for a fixed activation and fv the active stress derives from
+// the potential σmax a fv × this, which the implicit solver's line search uses.
+double calc_blemker_active_integral(const BlemkerFibreParameters& p, double lambda);
 
 // Fibre stress for activation a ∈ [0, 1] and force–velocity factor fv (1 = isometric):
 // P = σmax/λopt (f_passive + a f_active fv) (F a0 ⊗ a0)/λ. The energy is the passive part only.

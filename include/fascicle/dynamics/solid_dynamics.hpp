@@ -190,8 +190,8 @@ struct StepInputs {
 
 struct SolverOptions {
   Integrator integrator = Integrator::backward_euler;
-  int max_newton_iterations = 12;
-  double newton_tolerance = 1e-8;       // on |Δx|∞ relative to the solid's size
+  int max_newton_iterations = 25;
+  double newton_tolerance = 1e-7;       // on |Δx|∞ relative to the solid's size
   bool refresh_stiffness = true;        // false: keep the factorisation of the first iteration
                                         //   of the step while Newton converges (modified Newton)
   int max_step_halvings = 6;            // step-size control: failed steps are retried at dt/2
@@ -210,7 +210,8 @@ struct StepReport {
 
 // Values, forces and stiffness of the potential part (no inertia, no damping) at P.
 struct ForceEvaluation {
-  double energy_J = 0.0;
+  double energy_J = 0.0;               // stored energy (elastic, gravity, penalty, contact)
+  double active_energy_J = 0.0;        // potential of the active fibre stress at fixed a, fv
   VecX force;                          // 3#P, interleaved (3 I + c), N
   Eigen::SparseMatrix<double> stiffness;  // −∂f/∂x (only when requested), 3#P square
   double volume_m3 = 0.0;
