@@ -42,6 +42,46 @@ CoordinateTrajectory make_trajectory(const Model& model, const Table& motion, do
   return traj;
 }
 
+void add_activations(const Model& model, const Table& t, const std::string& file, CoordinateTrajectory& traj) {
+  const long frames = traj.time.size();
+  traj.activation = MatX::Constant(frames, model.num_muscles(), std::numeric_limits<double>::quiet_NaN());
+  int matched = 0;
+  for (long c = 0; c < t.columns(); ++c) {
+    const std::string& label = t.labels[c];
+    for (int m = 0; m < model.num_muscles(); ++m) {
+      const std::string& name = model.muscles[m].name;
+      const std::string path_suffix = "/" + name + "/activation";
+      const bool match = label == name || label == name + ".activation" ||
+                         (label.size() > path_suffix.size() &&
+                          label.compare(label.size() - path_suffix.size(), path_suffix.size(), path_suffix) == 0);
+      if (!match) continue;
+      ++matched;
+      for (long r = 0; r < frames; ++r) {
+        const double time = traj.time[r];
+        // Linear interpolation in the table's (increasing) times, constant outside.
+        const auto it = std::lower_bound(t.time.data(), t.time.data() + t.rows(), time);
+        const long k = it - t.time.data();
+        double v;
+        if (k <= 0) v = t.data(0, c);
+        else if (k >= t.rows()) v = t.data(t.rows() - 1, c);
+        else {
+          const double w = (time - t.time[k - 1]) / (t.time[k] - t.time[k - 1]);
+          v = (1.0 - w) * t.data(k - 1, c) + w * t.data(k, c);
+        }
+        if (!std::isfinite(v))
+          throw_bad_input("activation is not a number at t = " + std::to_string(time) + " s",
+                          {.file = file, .object = label});
+        traj.activation(r, m) = std::clamp(v, 0.0, 1.0);
+      }
+    }
+  }
+  if (matched == 0)
+    throw_bad_input("no activation column matches a muscle of the scene",
+                    {.file = file, .suggestion = "name columns after muscles, e.g. '" +
+                                                 (model.muscles.empty() ? std::string("soleus_r") : model.muscles[0].name) +
+                                                 "' or '/forceset/<muscle>/activation'"});
+}
+
 DriverResult run_frames(const Model& model, const CoordinateTrajectory& traj, const DriverOptions& options,
                         const std::vector<FrameWriter*>& writers) {
   const int frames = static_cast<int>(traj.time.size());
@@ -60,6 +100,7 @@ DriverResult run_frames(const Model& model, const CoordinateTrajectory& traj, co
     for (; frame < frames; ++frame) {
       state.time_s = traj.time[frame];
       state.q = traj.q.row(frame).transpose();
+      if (traj.activation.rows() == frames) state.activation = traj.activation.row(frame).transpose();
       state.stage = Stage::none;
       forward(model, state);
       for (FrameWriter* w : writers) w->write_frame(model, state, frame);

@@ -36,7 +36,10 @@ BodyIndex resolve_body(const std::vector<Body>& bodies, const std::string& name,
 Body compile_body(const SceneBodySpec& spec) {
   Body body;
   body.name = spec.name;
-  if (spec.mesh) {
+  body.mesh_is_obstacle = spec.mesh_is_obstacle;
+  if (spec.mesh && !spec.mesh_is_obstacle) {
+    body.mesh = *spec.mesh;  // drawn only
+  } else if (spec.mesh) {
     body.mesh = *spec.mesh;
     const MassProperties mp = [&] {
       try {
@@ -160,15 +163,42 @@ SkeletonSpec make_skeleton_spec(const Model& model, const std::vector<JointSpec>
   return s;
 }
 
-}  // namespace
+const char* get_joint_type_name(JointType type) {
+  switch (type) {
+    case JointType::weld: return "weld";
+    case JointType::pin: return "pin";
+    case JointType::slider: return "slider";
+    case JointType::universal: return "universal";
+    case JointType::ball: return "ball";
+    case JointType::free: return "free";
+    case JointType::custom: return "custom";
+  }
+  return "custom";
+}
 
-Model compile(const SceneSpec& spec, const Registry& registry) {
-  Model model;
-  model.name = spec.name;
+// The coordinates of the compiled skeleton, in its order, and the default pose.
+void add_coordinates(Model& model) {
+  for (int c = 0; c < model.skeleton->num_coordinates(); ++c) {
+    const CoordinateInfo& info = model.skeleton->get_coordinate(c);
+    Coordinate coord;
+    coord.name = info.spec.name;
+    coord.rotational = info.spec.motion_type != MotionType::translational;
+    coord.default_value = info.spec.default_value;
+    coord.range_min = info.spec.range_min;
+    coord.range_max = info.spec.range_max;
+    const std::string& joint_name = model.skeleton->get_joints().at(info.joint).name;
+    coord.joint = JointIndex{find_by_name(model.joints, joint_name)};
+    if (!(coord.range_min <= coord.range_max) || coord.default_value < coord.range_min ||
+        coord.default_value > coord.range_max)
+      throw_bad_input("coordinate default lies outside its range (or the range is empty)", {.object = coord.name});
+    model.coordinates.push_back(coord);
+  }
+  model.default_q = model.skeleton->get_default_q();
+}
+
+// Bodies and joints described by the scene (joint types from the registry).
+void compile_scene_skeleton(const SceneSpec& spec, const Registry& registry, Model& model) {
   const bool in_ground = spec.geometry_frame == GeometryFrame::ground;
-
-  // Bodies (ground first).
-  model.bodies.push_back(Body{.name = "ground"});
   for (const SceneBodySpec& b : spec.bodies) {
     if (b.name.empty() || b.name == "ground")
       throw_bad_input("a body needs a unique name other than 'ground'", {.object = b.name});
@@ -204,30 +234,15 @@ Model compile(const SceneSpec& spec, const Registry& registry) {
       throw_bad_input("body has no joint connecting it to the skeleton", {.object = model.bodies[b].name,
                       .suggestion = "add a joint with this body as child ('weld' to fix it)"});
   model.skeleton = std::make_unique<const Skeleton>(fascicle::compile(make_skeleton_spec(model, skeleton_joints)));
-  for (int c = 0; c < model.skeleton->num_coordinates(); ++c) {
-    const CoordinateInfo& info = model.skeleton->get_coordinate(c);
-    Coordinate coord;
-    coord.name = info.spec.name;
-    coord.rotational = info.spec.motion_type != MotionType::translational;
-    coord.default_value = info.spec.default_value;
-    coord.range_min = info.spec.range_min;
-    coord.range_max = info.spec.range_max;
-    const std::string& joint_name = model.skeleton->get_joints().at(info.joint).name;
-    coord.joint = JointIndex{find_by_name(model.joints, joint_name)};
-    if (!(coord.range_min <= coord.range_max) || coord.default_value < coord.range_min ||
-        coord.default_value > coord.range_max)
-      throw_bad_input("coordinate default lies outside its range (or the range is empty)", {.object = coord.name});
-    model.coordinates.push_back(coord);
-  }
-  model.default_q = model.skeleton->get_default_q();
-  model.X_ground_body_default = calc_body_transforms(model, model.default_q);
+  add_coordinates(model);
 
   // Body meshes given in ground at the default pose: move them into their body frames.
   if (in_ground) {
+    const std::vector<Transform> X_default = calc_body_transforms(model, model.default_q);
     for (size_t b = 1; b < model.bodies.size(); ++b) {
       Body& body = model.bodies[b];
       if (body.mesh.V.rows() == 0) continue;
-      const Transform X_body_ground = model.X_ground_body_default[b].inverse();
+      const Transform X_body_ground = X_default[b].inverse();
       body.mesh.V = ((body.mesh.V * X_body_ground.linear().transpose()).rowwise() +
                      X_body_ground.translation().transpose()).eval();
       const Mat3 R = X_body_ground.linear();
@@ -236,6 +251,71 @@ Model compile(const SceneSpec& spec, const Registry& registry) {
     }
     // The mass properties are now in body frames: rebuild the skeleton with them.
     model.skeleton = std::make_unique<const Skeleton>(fascicle::compile(make_skeleton_spec(model, skeleton_joints)));
+  }
+}
+
+// A ready skeleton (an OpenSim model's): its bodies, joints and coordinates; the scene's bodies
+// only add meshes, given in body frames.
+void compile_given_skeleton(const SceneSpec& spec, Model& model) {
+  if (!spec.joints.empty())
+    throw_usage("a scene with a ready skeleton cannot also list joints");
+  if (spec.geometry_frame != GeometryFrame::body)
+    throw_usage("a scene with a ready skeleton gives its meshes in body frames");
+  model.skeleton = std::make_unique<const Skeleton>(fascicle::compile(*spec.skeleton));
+  const Skeleton& sk = *model.skeleton;
+  for (int b = 1; b < sk.num_bodies(); ++b) {
+    const BodySpec& bs = sk.get_body(b);
+    Body body;
+    body.name = bs.name;
+    body.mass_kg = bs.mass;
+    body.center_of_mass = bs.com;
+    body.inertia = bs.inertia;
+    model.bodies.push_back(std::move(body));
+  }
+  for (const SceneBodySpec& b : spec.bodies) {
+    const int index = sk.find_body(b.name);
+    if (index < 1)
+      throw_bad_input("mesh for a body the skeleton does not have", {.object = b.name});
+    if (!b.mesh) continue;
+    Body& body = model.bodies[index];
+    body.mesh = *b.mesh;
+    body.mesh_is_obstacle = b.mesh_is_obstacle;
+    if (b.mesh_is_obstacle) body.mesh_volume_m3 = calc_mass_properties(body.mesh).volume_m3;
+  }
+  for (const JointSpec& js : sk.get_joints()) {
+    Joint j;
+    j.name = js.name;
+    j.type = get_joint_type_name(js.type);
+    j.parent = BodyIndex{sk.find_body(js.parent)};
+    j.child = BodyIndex{sk.find_body(js.child)};
+    j.X_parent_F = js.X_parent_F;
+    j.X_child_M = js.X_child_M;
+    j.num_coordinates = static_cast<int>(js.coordinates.size());
+    model.bodies[j.child.v].joint = JointIndex{static_cast<int32_t>(model.joints.size())};
+    model.joints.push_back(std::move(j));
+  }
+  add_coordinates(model);
+}
+
+}  // namespace
+
+Model compile(const SceneSpec& spec, const Registry& registry) {
+  Model model;
+  model.name = spec.name;
+  const bool in_ground = spec.geometry_frame == GeometryFrame::ground;
+
+  // Bodies (ground first), joints, the skeleton, coordinates.
+  model.bodies.push_back(Body{.name = "ground"});
+  if (spec.skeleton)
+    compile_given_skeleton(spec, model);
+  else
+    compile_scene_skeleton(spec, registry, model);
+  model.X_ground_body_default = calc_body_transforms(model, model.default_q);
+  if (spec.paths) {
+    PathNames names;
+    for (const Body& b : model.bodies) names.bodies.push_back(b.name);
+    for (const Coordinate& c : model.coordinates) names.coordinates.push_back(c.name);
+    model.paths = compile_paths(*spec.paths, names);
   }
 
   // Bone queries in the default pose (ground frame), for representations that keep muscles out of
@@ -261,6 +341,9 @@ Model compile(const SceneSpec& spec, const Registry& registry) {
     m.origin = compile_attachment(ms.origin, model.bodies, model.X_ground_body_default, in_ground, ms.name, "origin");
     m.insertion = compile_attachment(ms.insertion, model.bodies, model.X_ground_body_default, in_ground, ms.name,
                                      "insertion");
+    if (ms.path >= 0 && ms.path >= static_cast<int>(model.paths.paths.size()))
+      throw_bad_input("muscle refers to a path the scene does not have", {.object = ms.name});
+    m.path = ms.path;
     for (const ViaPointSpec& v : ms.via_points) {
       ViaPoint vp;
       vp.body = resolve_body(model.bodies, v.body, ms.name, "via point");

@@ -93,7 +93,7 @@ JointSpec make_free_joint(const SceneJointSpec& s) {
 
 std::unique_ptr<const Actuator> make_hill_actuator(const MuscleSpec& spec) {
   const ActuatorSpec& a = spec.actuator;
-  MuscleParameters p = default_muscle_parameters(parse_muscle_model(a.model));
+  MuscleParameters p = a.parameters ? *a.parameters : default_muscle_parameters(parse_muscle_model(a.model));
   p.name = spec.name;
   p.max_isometric_force_N = a.max_isometric_force_N;
   p.optimal_fiber_length_m = a.optimal_fiber_length_m;

@@ -56,6 +56,17 @@ void calc_action_lines(const Model& model, State& state) {
   for_each_muscle(model, [&](int m) {
     const Muscle& muscle = model.muscles[m];
     MuscleFrame& out = state.muscles[m];
+    if (muscle.path >= 0) {
+      // A wrapping path (path module): its polyline, arcs sampled every 5 mm.
+      PathResult path;
+      calc_path(model.paths, muscle.path, state.X_ground_body, state.skeleton->get_q(), path);
+      out.action_line = calc_path_polyline(path, 0.005);
+      out.action_line_bodies.assign(static_cast<size_t>(out.action_line.rows()), BodyIndex{});
+      out.musculotendon_length_m = path.length_m;
+      if (!std::isfinite(out.musculotendon_length_m))
+        throw_numerical("the muscle path has a non-finite length");
+      return;
+    }
     const auto n = static_cast<Eigen::Index>(muscle.via_points.size() + 2);
     out.action_line.resize(n, 3);
     out.action_line_bodies.resize(n);
@@ -82,7 +93,9 @@ void calc_forces(const Model& model, State& state) {
     MuscleFrame& out = state.muscles[m];
     out.hill = MuscleOutputs{};
     if (!muscle.actuator) return;
-    out.hill = muscle.actuator->calc_outputs(muscle.activation, out.musculotendon_length_m);
+    const double a = m < state.activation.size() && std::isfinite(state.activation[m]) ? state.activation[m]
+                                                                                      : muscle.activation;
+    out.hill = muscle.actuator->calc_outputs(a, out.musculotendon_length_m);
     if (!std::isfinite(out.hill.tendon_force_N))
       throw_numerical("the musculotendon equilibrium gave a non-finite tendon force");
   });

@@ -20,6 +20,7 @@ namespace fascicle {
 struct CoordinateTrajectory {
   VecX time;
   MatX q;
+  MatX activation;  // #frames × #muscles, or empty; NaN: the muscle's constant activation
 };
 
 // Resamples `motion` at `frame_rate_hz` and maps its columns to the Model's coordinates (labels
@@ -28,6 +29,14 @@ struct CoordinateTrajectory {
 // keep their default. Values outside a coordinate's range are clamped, with a warning naming the
 // coordinate. Throws bad_input when no column matches any coordinate.
 CoordinateTrajectory make_trajectory(const Model& model, const Table& motion, double frame_rate_hz);
+
+// Activations over time (e.g. an OpenSim states or controls .sto), interpolated linearly at the
+// trajectory's times (held constant outside the table's time range). A column belongs to a muscle
+// when its label is the muscle's name, `<name>.activation`, or an OpenSim path ending in
+// `/<name>/activation`. Muscles without a column keep their constant activation. Values are
+// clamped to [0, 1]. Throws bad_input naming the file when no column matches any muscle.
+void add_activations(const Model& model, const Table& activations, const std::string& file,
+                     CoordinateTrajectory& trajectory);
 
 struct DriverOptions {
   std::filesystem::path out_dir = ".";

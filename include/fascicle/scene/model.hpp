@@ -6,6 +6,7 @@
 #include "fascicle/core/types.hpp"
 #include "fascicle/geometry/mesh_query.hpp"
 #include "fascicle/geometry/tri_mesh.hpp"
+#include "fascicle/path/path_model.hpp"
 #include "fascicle/scene/ids.hpp"
 #include "fascicle/scene/registry.hpp"
 #include "fascicle/scene/scene_spec.hpp"
@@ -24,7 +25,8 @@ struct Body {
   double mass_kg = 0.0;
   Vec3 center_of_mass = Vec3::Zero();  // body frame
   Mat3 inertia = Mat3::Zero();     // kg m², about the centre of mass, body axes
-  double mesh_volume_m3 = 0.0;     // enclosed volume of the mesh (0 without a mesh)
+  double mesh_volume_m3 = 0.0;     // enclosed volume of the mesh (0 without a mesh or obstacle)
+  bool mesh_is_obstacle = true;    // false: display only (no rest_query, no mass properties)
   JointIndex joint;                // the joint whose child this body is (invalid for ground)
   // Closest-point / inside queries on the mesh placed in ground at the default pose (null without
   // a mesh): what muscles bound in the rest pose test against, moved by the body's motion.
@@ -71,6 +73,7 @@ struct Muscle {
   Attachment origin;
   Attachment insertion;
   std::vector<ViaPoint> via_points;
+  int path = -1;               // index into Model::paths (wrapping path), -1: via points
   std::string actuator_type;
   ActuatorSpec actuator_spec;
   double activation = 0.5;
@@ -88,6 +91,7 @@ struct Model {
   std::vector<Joint> joints;             // parents before children
   std::vector<Coordinate> coordinates;   // in the skeleton's coordinate order
   std::vector<Muscle> muscles;
+  PathSetModel paths;                    // compiled SceneSpec::paths (empty without)
   VecX default_q;                        // #coordinates
   std::vector<Transform> X_ground_body_default;  // at default_q
 

@@ -5,6 +5,9 @@
 
 #include "fascicle/core/types.hpp"
 #include "fascicle/geometry/tri_mesh.hpp"
+#include "fascicle/musculotendon/parameters.hpp"
+#include "fascicle/path/path_spec.hpp"
+#include "fascicle/skeleton/skeleton.hpp"
 
 #include <filesystem>
 #include <map>
@@ -26,6 +29,9 @@ struct SceneBodySpec {
   std::optional<Vec3> center_of_mass;  // body frame; given, or the mesh centroid
   std::optional<Mat3> inertia;         // kg m², about the centre of mass; given or from the mesh
   double density_kg_per_m3 = 1900.0;   // whole-bone density (cortical + trabecular), see docs
+  // false: the mesh is drawn but is not an obstacle and gives no mass properties (an open or
+  // non-manifold display mesh, as many OpenSim bone files are).
+  bool mesh_is_obstacle = true;
 };
 
 struct SceneCoordinateSpec {
@@ -72,6 +78,9 @@ struct ActuatorSpec {
   double tendon_slack_length_m = 0.2;
   double pennation_at_optimal_rad = 0.0;
   bool rigid_tendon = false;
+  // Every parameter (curves, time constants) when known, e.g. from an OpenSim model; the numbers
+  // above must then equal its fields.
+  std::optional<MuscleParameters> parameters;
 };
 
 struct MuscleSpec {
@@ -82,6 +91,9 @@ struct MuscleSpec {
   AttachmentSpec origin;
   AttachmentSpec insertion;
   std::vector<ViaPointSpec> via_points;
+  // Index into SceneSpec::paths: the action line is that path (via points, wrapping; OpenSim's
+  // GeometryPath) instead of origin → via points → insertion. -1: none.
+  int path = -1;
   ActuatorSpec actuator;
   double activation = 0.5;                           // constant activation in [0, 1]
   std::string fibre_template;                        // e.g. "parallel", "pennate", "bipennate"
@@ -107,6 +119,11 @@ struct SceneSpec {
   std::vector<MuscleSpec> muscles;
   std::optional<MotionSpec> motion;
   std::vector<WriterSpec> outputs;   // empty: paraview + sto + csv
+  // A ready skeleton (e.g. an OpenSim model's, osim module): then `joints` must be empty, the
+  // bodies and coordinates are the skeleton's, `bodies` only add meshes (by name, body frame),
+  // and geometry_frame must be `body`.
+  std::optional<SkeletonSpec> skeleton;
+  std::optional<PathSetSpec> paths;  // muscle paths (MuscleSpec::path), with the skeleton's names
 };
 
 }  // namespace fascicle

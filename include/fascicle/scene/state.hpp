@@ -39,6 +39,7 @@ struct MuscleFrame {
 struct State {
   double time_s = 0.0;
   VecX q;                                  // #coordinates
+  VecX activation;                         // #muscles or empty; NaN: the muscle's constant activation
   std::vector<Transform> X_ground_body;    // #bodies (valid from Stage::pose)
   std::vector<MuscleFrame> muscles;        // #muscles
   // Per muscle: its representation's frame-to-frame data (null when it keeps none); made by
