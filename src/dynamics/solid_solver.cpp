@@ -5,6 +5,7 @@
 #include "fascicle/core/error.hpp"
 #include "internal.hpp"
 
+#include <Eigen/CholmodSupport>
 #include <Eigen/SparseCholesky>
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -30,7 +31,34 @@ struct SolidDynamicsSolver::Workspace {
   std::vector<char> fixed_dof;
   VecX inv_mass;                     // per dof, 0 on fixed
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower> ldlt;
-  bool analysed = false;
+  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>, Eigen::Lower> llt;
+  bool analysed = false, llt_analysed = false, use_llt = false;
+  int factor_age = -1;       // steps since the factorisation (−1: none valid)
+  double factor_h = 0.0;     // time step the factorisation was made for
+  VecX solve(const VecX& b) { return use_llt ? VecX(llt.solve(b)) : VecX(ldlt.solve(b)); }
+  // Factorises A: supernodal LLᵀ when allowed and positive definite, else LDLᵀ.
+  bool factorise(bool supernodal) {
+    use_llt = false;
+    if (supernodal) {
+      if (!llt_analysed) {
+        llt.cholmod().print = 0;  // not positive definite is an expected outcome here
+        llt.cholmod().error_handler = nullptr;
+        llt.analyzePattern(A);
+        llt_analysed = true;
+      }
+      llt.factorize(A);
+      if (llt.info() == Eigen::Success) {
+        use_llt = true;
+        return true;
+      }
+    }
+    if (!analysed) {
+      ldlt.analyzePattern(A);
+      analysed = true;
+    }
+    ldlt.factorize(A);
+    return ldlt.info() == Eigen::Success;
+  }
   double size_m = 1.0;
   double last_lambda = 0.0;  // multiplier of the exact volume constraint (warm start)
 };
@@ -157,6 +185,7 @@ StepReport SolidDynamicsSolver::step(double dt, const StepInputs& in) {
       // Attachment targets are interpolated linearly in time across sub-intervals.
       r = try_step(h, in, trial);
     } catch (const Error& e) {
+      ws_->factor_age = -1;  // a failed step never leaves a lagged factorisation behind
       if (e.kind() == ErrorKind::numerical && halvings < options_.max_step_halvings) {
         h *= 0.5;
         ++halvings;
@@ -323,7 +352,14 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     }
     for (int i = 0; i < 3 * n; ++i)
       if (w.fixed_dof[i]) r[i] = 0.0;
-    if (!factored || options_.refresh_stiffness) {
+    // A lagged factorisation from an earlier step is kept while Newton converges quickly.
+    const bool reuse = options_.reuse_factorisation_steps > 0 && it == 0 && w.factor_age >= 0 &&
+                       w.factor_age < options_.reuse_factorisation_steps && w.factor_h == h;
+    const bool modified = !options_.refresh_stiffness || options_.reuse_factorisation_steps > 0;
+    const bool slow = factored && it >= 4 && modified && rep.factorisations == 0;
+    if (reuse) {
+      factored = true;
+    } else if (!factored || !modified || slow) {
       calc_forces_into(m, unflatten_points(x), V_start, a, true, in.X_now_rest, w.fe,
                        volume_curvature());
       Eigen::Map<VecX> Av(w.A.valuePtr(), w.A.nonZeros());
@@ -332,22 +368,21 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
       if (has_D && !quasi) Av += Eigen::Map<const VecX>(w.D.valuePtr(), Av.size()) / h;
       for (int p : w.zero_positions) Av[p] = 0.0;
       for (int p : w.diag_positions) Av[p] = 1.0;
-      if (!w.analysed) {
-        w.ldlt.analyzePattern(w.A);
-        w.analysed = true;
-      }
-      w.ldlt.factorize(w.A);
       ++rep.factorisations;
-      if (w.ldlt.info() != Eigen::Success)
+      if (!w.factorise(options_.supernodal)) {
+        w.factor_age = -1;
         throw_numerical("the backward-Euler system could not be factorised");
+      }
+      w.factor_age = 0;
+      w.factor_h = h;
       factored = true;
     }
-    VecX y = w.ldlt.solve(-r);
+    VecX y = w.solve(-r);
     if (penalty) {
-      const VecX z = w.ldlt.solve(g);
+      const VecX z = w.solve(g);
       y -= (c_rank * g.dot(y) / (1.0 + c_rank * g.dot(z))) * z;
     } else if (exact) {
-      const VecX z = w.ldlt.solve(g);
+      const VecX z = w.solve(g);
       const double gz = g.dot(z);
       if (gz > 0.0) {
         lambda = (g.dot(y) + (w.fe.volume_m3 - V0)) / gz;
@@ -409,6 +444,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   s.V = quasi ? Points3::Zero(n, 3) : unflatten_points((x - x_n) / h);
   project_volume(s, s, h, rep);
   w.last_lambda = lambda;
+  if (w.factor_age >= 0) ++w.factor_age;
   s.activation = a;
   s.time_s += h;
   rep.substeps = 1;

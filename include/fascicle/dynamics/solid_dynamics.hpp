@@ -194,6 +194,10 @@ struct SolverOptions {
   double newton_tolerance = 1e-7;       // on |Δx|∞ relative to the solid's size
   bool refresh_stiffness = true;        // false: keep the factorisation of the first iteration
                                         //   of the step while Newton converges (modified Newton)
+  int reuse_factorisation_steps = 0;    // > 0: keep a factorisation over up to this many steps
+                                        //   (lagged Jacobian); refreshed when Newton slows down
+  bool supernodal = true;               // CHOLMOD supernodal LLᵀ (falls back to Eigen's LDLᵀ
+                                        //   when the matrix is not positive definite)
   int max_step_halvings = 6;            // step-size control: failed steps are retried at dt/2
   double explicit_safety = 0.5;         // symplectic Euler: sub-step = safety × 2/ω_max
   double energy_blowup_factor = 1e3;    // error if the energy grows by this factor plus 1 J/kg
