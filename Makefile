@@ -3,7 +3,7 @@ BUILD ?= build
 JOBS ?= $(shell nproc)
 CMAKE_FLAGS ?= -DCMAKE_BUILD_TYPE=Release
 
-.PHONY: deps configure build test demo bench asan clean
+.PHONY: deps configure build test demo bench asan clean viewer
 
 deps:
 	@bash scripts/install-deps
@@ -13,15 +13,24 @@ $(BUILD)/CMakeCache.txt:
 
 configure: deps $(BUILD)/CMakeCache.txt
 
-build: configure
+build: configure viewer
 	cmake --build $(BUILD) -j $(JOBS)
+
+# The browser viewer (viewer/, docs/viewer.md): npm ci when node_modules is missing or older than the
+# lock file, vite build when a source is newer than dist/viewer.js.
+VIEWER_SOURCES := $(shell find viewer/src -type f 2>/dev/null) viewer/package.json viewer/tsconfig.json viewer/vite.config.ts
+viewer/node_modules/.package-lock.json: viewer/package-lock.json
+	cd viewer && npm ci --no-audit --no-fund
+viewer/dist/viewer.js: viewer/node_modules/.package-lock.json $(VIEWER_SOURCES)
+	cd viewer && npm run build
+viewer: viewer/dist/viewer.js
 
 test: build
 	ctest --test-dir $(BUILD) --output-on-failure -j $(JOBS)
 
 demo: build
 	$(BUILD)/bin/fascicle demo --out out/demo
-	@echo "demo written to out/demo: open out/demo/demo.pvd in ParaView"
+	@echo "demo written to out/demo: open out/demo/report.html in a browser, or out/demo/demo.pvd in ParaView"
 
 bench: build
 	@mkdir -p out/bench

@@ -26,6 +26,8 @@ void add_solid_commands(CLI::App& app, Invocation& run);  // cmd_solid.cpp
 void add_fibres_commands(CLI::App& app, Invocation& run);  // cmd_fibres.cpp
 void add_analyze_commands(CLI::App& app, Invocation& run);  // cmd_analyze.cpp
 void add_paths_commands(CLI::App& app, Invocation& run);  // cmd_paths.cpp
+void add_view_commands(CLI::App& app, Invocation& run);  // cmd_view.cpp
+void add_export_commands(CLI::App& app, Invocation& run);  // cmd_export.cpp
 
 // The registry of `fascicle run` and `fascicle demo` (cli_registry.cpp): the library's built-ins
 // plus the kinds of the modules above the scene (e.g. the report writer), and the writers a run

@@ -32,6 +32,8 @@ int main(int argc, char** argv) {
   fascicle::cli::add_fibres_commands(app, run);
   fascicle::cli::add_analyze_commands(app, run);
   fascicle::cli::add_paths_commands(app, run);
+  fascicle::cli::add_view_commands(app, run);
+  fascicle::cli::add_export_commands(app, run);
 
   try {
     app.parse(argc, argv);
