@@ -115,7 +115,7 @@ void add_run_commands(CLI::App& app, Invocation& run_action) {
                   "Activations over time (.sto/.csv; columns named after muscles or /forceset/<m>/activation)");
   cmd->add_option("--activation", args->activation, "Constant activation of every muscle")->check(CLI::Range(0.0, 1.0));
   cmd->add_option("--geometry", args->geometry, "Extra folders searched for the model's mesh files");
-  cmd->add_option("--muscles", args->muscles, "Only these muscles of the model (comma-separated)")->delimiter(',');
+  cmd->add_option("--muscles", args->muscles, "Only these muscles of the model (comma-separated names or patterns such as '*_r')")->delimiter(',');
   cmd->add_option("--representation", args->representation,
                   "Muscle representation for every muscle (surface_first, blended_surface, action_line, ...)");
   cmd->add_option("--specific-tension", args->specific_tension,

@@ -10,6 +10,8 @@
 
 #include <spdlog/spdlog.h>
 
+#include <fnmatch.h>
+
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -220,9 +222,13 @@ SceneSpec make_scene_from_osim(const OsimModel& osim, const OsimSceneOptions& op
   std::vector<std::string> valid;
   for (const OsimPathActuator& a : osim.actuators)
     if (a.muscle) valid.push_back(a.name);
-  for (const std::string& name : options.muscles)
-    if (std::find(valid.begin(), valid.end(), name) == valid.end())
-      throw_unknown_name("muscle", name, valid, {.file = osim.file.string(), .suggestion = "see --muscles"});
+  // A selection entry is a name or a shell pattern ("*_r"); each must select at least one muscle.
+  const auto selects = [](const std::string& pattern, const std::string& name) {
+    return fnmatch(pattern.c_str(), name.c_str(), 0) == 0;
+  };
+  for (const std::string& pattern : options.muscles)
+    if (std::none_of(valid.begin(), valid.end(), [&](const std::string& n) { return selects(pattern, n); }))
+      throw_unknown_name("muscle", pattern, valid, {.file = osim.file.string(), .suggestion = "see --muscles"});
 
   int skipped = 0;
   for (const OsimPathActuator& a : osim.actuators) {
@@ -231,7 +237,8 @@ SceneSpec make_scene_from_osim(const OsimModel& osim, const OsimSceneOptions& op
       continue;
     }
     if (!options.muscles.empty() &&
-        std::find(options.muscles.begin(), options.muscles.end(), a.name) == options.muscles.end())
+        std::none_of(options.muscles.begin(), options.muscles.end(),
+                     [&](const std::string& pattern) { return selects(pattern, a.name); }))
       continue;
     const MuscleParameters& p = *a.muscle;
     PathResult result;

@@ -57,7 +57,7 @@ BellySpan calc_belly_span(double path_length_m, double volume_m3, const MusclePa
 Points3 calc_sub_polyline(const Points3& polyline, double a, double b);
 
 struct OsimSceneOptions {
-  std::vector<std::string> muscles;        // names to keep (empty: every muscle with Hill parameters)
+  std::vector<std::string> muscles;  // names or shell patterns ("*_r") to keep (empty: every Hill muscle)
   std::string representation = "surface_first";
   double activation = -1.0;                // constant activation; < 0: each muscle's default
   GeneratedBellyOptions belly;
