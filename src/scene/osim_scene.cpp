@@ -128,7 +128,8 @@ GeneratedBelly make_fusiform_belly(const Points3& centreline, double volume_m3, 
     for (int i = 0; i < o.fibres; ++i) {
       const double u0 = 0.2 + 0.75 * (i + 0.5) / o.fibres;
       const double phi = i * golden;
-      const auto gap = [&](double tau) { return tau * sa - radius_at(u0 - tau * ca / length); };
+      // 95 % of the profile radius: the polygonal sections lie inside the smooth profile.
+      const auto gap = [&](double tau) { return tau * sa - 0.95 * radius_at(u0 - tau * ca / length); };
       double lo = 0.0, hi = u0 * length / ca;  // gap(hi) >= 0: the tip has radius 0
       for (int it = 0; it < 60; ++it) (gap(0.5 * (lo + hi)) < 0.0 ? lo : hi) = 0.5 * (lo + hi);
       const int samples = 8;

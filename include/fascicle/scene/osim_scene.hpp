@@ -31,7 +31,7 @@ struct GeneratedBellyOptions {
 // ρ of the local radius and a fixed angle φ in the section frame ((ρ², φ) on a sunflower
 // pattern, ρ ≤ 0.9): a parallel-fibred muscle. With pennation α > 5°, each fibre starts on the axis
 // (a central aponeurosis) and runs towards the origin tip and outwards at angle α to the axis, at
-// a fixed angle φ, until it meets the surface: a multipennate muscle whose fibre length follows
+// a fixed angle φ, until it reaches 95 % of the local radius: a multipennate muscle whose fibre length follows
 // from the shape. Throws fascicle::Error (bad input) for a degenerate line or volume.
 struct GeneratedBelly {
   TriMesh mesh;
