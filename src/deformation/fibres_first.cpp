@@ -7,7 +7,7 @@
 #include "fascicle/core/parallel.hpp"
 #include "fascicle/deformation/mesh_operators.hpp"
 
-#include <Eigen/SparseCholesky>
+#include <cholmod.h>
 #include <nanoflann.hpp>
 
 #include <algorithm>
@@ -94,14 +94,105 @@ double hold_volume_along(const FibreBundle& m, int P, Points3& xm, const Points3
 
 }  // namespace
 
+// A sparse LDL^T factor (CHOLMOD simplicial, AMD ordering) that can be modified by rank-k
+// updates/downdates (Davis and Hager 1999, cholmod_updown): adding or removing contact weights on
+// the diagonal costs a small fraction of a new factorisation. One CHOLMOD workspace per factor,
+// so factors of different muscles can be used from different threads.
+class LdlFactor {
+ public:
+  LdlFactor() {
+    cholmod_start(&c_);
+    c_.supernodal = CHOLMOD_SIMPLICIAL;
+    c_.final_ll = 0;
+    c_.nmethods = 1;
+    c_.method[0].ordering = CHOLMOD_AMD;
+    c_.print = 0;
+  }
+  ~LdlFactor() {
+    if (L_) cholmod_free_factor(&L_, &c_);
+    cholmod_finish(&c_);
+  }
+  LdlFactor(const LdlFactor&) = delete;
+  LdlFactor& operator=(const LdlFactor&) = delete;
+
+  // K: symmetric, lower triangle stored, compressed. False when not positive definite.
+  bool factorise(SparseMatrix& K) {
+    cholmod_sparse A{};
+    A.nrow = A.ncol = static_cast<std::size_t>(K.rows());
+    A.nzmax = static_cast<std::size_t>(K.nonZeros());
+    A.p = K.outerIndexPtr();
+    A.i = K.innerIndexPtr();
+    A.x = K.valuePtr();
+    A.stype = -1;
+    A.itype = CHOLMOD_INT;
+    A.xtype = CHOLMOD_REAL;
+    A.dtype = CHOLMOD_DOUBLE;
+    A.sorted = 1;
+    A.packed = 1;
+    if (!L_) {
+      L_ = cholmod_analyze(&A, &c_);
+      if (!L_) return false;
+      const int* perm = static_cast<const int*>(L_->Perm);
+      position_.resize(K.rows());
+      for (Eigen::Index r = 0; r < K.rows(); ++r) position_[perm[r]] = static_cast<int>(r);
+    }
+    return cholmod_factorize(&A, L_, &c_) && c_.status == CHOLMOD_OK && L_->minor == L_->n;
+  }
+
+  // K += sum_j delta_j e_j e_j^T (update when all deltas > 0, downdate when all < 0).
+  bool modify_diagonal(bool update, const std::vector<std::pair<int, double>>& changes) {
+    if (changes.empty()) return true;
+    const std::size_t k = changes.size();
+    cholmod_sparse* C = cholmod_allocate_sparse(L_->n, k, k, 1, 1, 0, CHOLMOD_REAL, &c_);
+    if (!C) return false;
+    auto* cp = static_cast<int*>(C->p);
+    auto* ci = static_cast<int*>(C->i);
+    auto* cx = static_cast<double*>(C->x);
+    for (std::size_t j = 0; j < k; ++j) {
+      cp[j] = static_cast<int>(j);
+      ci[j] = position_[changes[j].first];  // rows of C in the factor's permuted order
+      cx[j] = std::sqrt(std::abs(changes[j].second));
+    }
+    cp[k] = static_cast<int>(k);
+    const bool ok = cholmod_updown(update ? 1 : 0, C, L_, &c_) && c_.status == CHOLMOD_OK;
+    cholmod_free_sparse(&C, &c_);
+    return ok;
+  }
+
+  // Solves K X = B in place (B: n x any columns).
+  void solve(Eigen::MatrixXd& B) {
+    cholmod_dense b{};
+    b.nrow = static_cast<std::size_t>(B.rows());
+    b.ncol = static_cast<std::size_t>(B.cols());
+    b.nzmax = b.nrow * b.ncol;
+    b.d = b.nrow;
+    b.x = B.data();
+    b.xtype = CHOLMOD_REAL;
+    b.dtype = CHOLMOD_DOUBLE;
+    cholmod_dense* X = cholmod_solve(CHOLMOD_A, L_, &b, &c_);
+    if (!X) {
+      B.setConstant(std::numeric_limits<double>::quiet_NaN());
+      return;
+    }
+    B = Eigen::Map<const Eigen::MatrixXd>(static_cast<const double*>(X->x), B.rows(), B.cols());
+    cholmod_free_dense(&X, &c_);
+  }
+
+ private:
+  cholmod_common c_;
+  cholmod_factor* L_ = nullptr;
+  std::vector<int> position_;  // per unknown: its row in the permuted factor
+};
+
 // One muscle's linear system: K = sum_springs k A^T A (free rows) + m/h^2 I (dynamic) + contact
 // weights on the diagonal; factorised numerically again only when those diagonal terms change.
 struct MuscleSystem {
   SparseMatrix K_springs;
   SparseMatrix K;
   std::vector<Eigen::Index> diag;  // position of K(j, j) in K.valuePtr()
-  Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower> ldlt;
-  bool analysed = false, valid = false;
+  LdlFactor factor;
+  bool valid = false;
+  int modifications = 0;  // rank-one modifications since the last full factorisation
   std::vector<double> factored_weight;  // per free particle
   double factored_mass_term = 0.0;
   std::vector<double> weight;  // per free particle: contact weight wanted this iteration
@@ -120,6 +211,8 @@ struct FibresFirstSolver::Workspace {
   // bone contacts, per particle (bone -1: none); targets fixed in the bone's rest frame
   std::vector<int> contact_bone;
   std::vector<Vec3> contact_target_rest, contact_normal_rest;
+  std::vector<Points3> checked_at;  // per bone: last exactly tested position (bone rest frame)
+  std::vector<VecX> clearance;      // per bone: its distance to the bone then (0: inside)
   std::vector<MusclePair> pairs;
   std::unordered_set<long long> pair_keys;
   Points3 pair_target;           // per particle: mean pair target this iteration
@@ -160,6 +253,8 @@ FibresFirstSolver::FibresFirstSolver(const FibresFirstModel& model)
     sys.factored_weight.assign(nf, 0.0);
     sys.weight.assign(nf, 0.0);
   }
+  ws.checked_at.assign(model_.num_bones(), model_.rest);
+  ws.clearance = model_.rest_bone_clearance;
   ws.contact_bone.assign(N, -1);
   ws.contact_target_rest.assign(N, Vec3::Zero());
   ws.contact_normal_rest.assign(N, Vec3::Zero());
@@ -178,6 +273,8 @@ void FibresFirstSolver::reset() {
   ws.pairs.clear();
   ws.pair_keys.clear();
   ws.has_previous = false;
+  ws.checked_at.assign(model_.num_bones(), model_.rest);
+  ws.clearance = model_.rest_bone_clearance;
   x_ = model_.rest;
   frames_.assign(model_.muscles.size(), {});
   info_ = {};
@@ -204,8 +301,11 @@ struct FrameContext {
 
 // Adds particles that entered a bone (beyond their rest depth) as contacts; returns the number
 // added and reports the deepest penetration beyond rest over all particles.
+// `checked_at` / `clearance` (per bone, per particle) cache the last exact test: a particle that
+// was outside at distance c (bone frame) and has moved less than c since cannot be inside.
 int detect_bone_contacts(const FrameContext& c, const Points3& x, std::vector<int>& contact_bone,
                          std::vector<Vec3>& target_rest, std::vector<Vec3>& normal_rest,
+                         std::vector<Points3>& checked_at, std::vector<VecX>& clearance,
                          bool add, std::vector<double>* max_depth_per_muscle) {
   const FibresFirstModel& model = c.model;
   const double margin = model.options.bone_margin_m;
@@ -215,21 +315,30 @@ int detect_bone_contacts(const FrameContext& c, const Points3& x, std::vector<in
     const Transform X_rest_now = c.motions[b].inverse();
     const TriMesh& mesh = bone.get_mesh();
     for (int p = 0; p < model.num_particles(); ++p) {
-      if (model.fixed_bone[p] == b || model.rest_bone_depth[b][p] > 0.0) continue;
+      // fixed particles follow their bone and cannot be moved: neither contacts nor measured
+      if (model.role[p] == ParticleRole::fixed || model.rest_bone_depth[b][p] > 0.0) continue;
       const Vec3 local = X_rest_now * Vec3(x.row(p).transpose());
-      const double moved = (local - model.rest.row(p).transpose()).norm();
-      if (moved < model.rest_bone_clearance[b][p]) continue;  // cannot have reached the bone
-      if (!bone.calc_is_inside(local)) continue;
+      const double moved = (local - checked_at[b].row(p).transpose()).norm();
+      if (moved < clearance[b][p]) continue;  // cannot have reached the bone
       const ClosestPoint cp = bone.calc_closest_point(local);
+      checked_at[b].row(p) = local.transpose();
+      clearance[b][p] = cp.distance;
+      const Vec3 a = mesh.V.row(mesh.F(cp.triangle, 0)), bb = mesh.V.row(mesh.F(cp.triangle, 1)),
+                 cc = mesh.V.row(mesh.F(cp.triangle, 2));
+      const Vec3 face_normal = (bb - a).cross(cc - a);
+      // closest point inside a face of a closed surface: the side of that face decides exactly;
+      // on an edge or a vertex, the ray-crossing test of MeshQuery does
+      const bool on_face = cp.barycentric.minCoeff() > 1e-9 && face_normal.norm() > 0.0;
+      const bool inside = on_face ? (local - cp.point).dot(face_normal) < 0.0 : bone.calc_is_inside(local);
+      if (!inside) continue;
+      clearance[b][p] = 0.0;
       if (max_depth_per_muscle) {
         double& d = (*max_depth_per_muscle)[model.muscle_of[p]];
         d = std::max(d, cp.distance);
       }
-      if (!add || model.role[p] == ParticleRole::fixed || contact_bone[p] >= 0) continue;
-      const Vec3 a = mesh.V.row(mesh.F(cp.triangle, 0)), bb = mesh.V.row(mesh.F(cp.triangle, 1)),
-                 cc = mesh.V.row(mesh.F(cp.triangle, 2));
-      Vec3 n = (bb - a).cross(cc - a);
-      n = n.norm() > 0.0 ? Vec3(n.normalized()) : Vec3((cp.point - local).normalized());
+      if (!add || contact_bone[p] >= 0) continue;
+      const Vec3 n = face_normal.norm() > 0.0 ? Vec3(face_normal.normalized())
+                                              : Vec3((cp.point - local).normalized());
       contact_bone[p] = b;
       target_rest[p] = cp.point + margin * n;
       normal_rest[p] = n;
@@ -344,7 +453,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
   ws.pairs.clear();
   ws.pair_keys.clear();
   detect_bone_contacts(ctx, x, ws.contact_bone, ws.contact_target_rest, ws.contact_normal_rest,
-                       true, nullptr);
+                       ws.checked_at, ws.clearance, true, nullptr);
   detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
 
   const int nm = static_cast<int>(model.muscles.size());
@@ -375,24 +484,39 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
         refactor.push_back(mi);
     }
     std::vector<char> failed(nm, 0);
+    std::vector<char> refactorised(nm, 0);
     parallel_for(refactor.size(), [&](std::size_t r) {
       const int mi = refactor[r];
       MuscleSystem& sys = *ws.systems[mi];
       const double mass_term = model.muscles[mi].particle_mass_kg * ctx.mass_scale;
+      // contact weights changed only: update/downdate the factor (refactorise now and then to
+      // bound round-off); otherwise factorise anew
+      if (sys.valid && mass_term == sys.factored_mass_term && sys.modifications < 4 * static_cast<int>(sys.diag.size())) {
+        std::vector<std::pair<int, double>> up, down;
+        for (std::size_t j = 0; j < sys.diag.size(); ++j) {
+          const double delta = sys.weight[j] - sys.factored_weight[j];
+          if (delta > 0.0) up.emplace_back(static_cast<int>(j), delta);
+          if (delta < 0.0) down.emplace_back(static_cast<int>(j), delta);
+        }
+        if (sys.factor.modify_diagonal(true, up) && sys.factor.modify_diagonal(false, down)) {
+          sys.modifications += static_cast<int>(up.size() + down.size());
+          sys.factored_weight = sys.weight;
+          return;
+        }
+      }
       const double* base = sys.K_springs.valuePtr();
       for (std::size_t j = 0; j < sys.diag.size(); ++j)
         sys.K.valuePtr()[sys.diag[j]] = base[sys.diag[j]] + mass_term + sys.weight[j];
-      if (!sys.analysed) {
-        sys.ldlt.analyzePattern(sys.K);
-        sys.analysed = true;
-      }
-      sys.ldlt.factorize(sys.K);
-      sys.valid = sys.ldlt.info() == Eigen::Success;
+      sys.valid = sys.factor.factorise(sys.K);
       failed[mi] = !sys.valid;
+      refactorised[mi] = 1;
+      sys.modifications = 0;
       sys.factored_weight = sys.weight;
       sys.factored_mass_term = mass_term;
     });
-    info_.factorisations += static_cast<int>(refactor.size());
+    for (int mi = 0; mi < nm; ++mi) info_.factorisations += refactorised[mi];
+    info_.factor_updates += static_cast<int>(refactor.size()) - static_cast<int>(
+        std::count(refactorised.begin(), refactorised.end(), 1));
     for (int mi = 0; mi < nm; ++mi)
       if (failed[mi])
         throw_numerical(fmt::format("frame {}: factorisation of the spring system of muscle '{}' "
@@ -461,7 +585,8 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
           for (int j = 0; j < nf; ++j) B.row(j).tail<3>() = g.row(m.free[j] - base);
         }
         // global step, then the volume: x = x_u + t Y with Y = -K^-1 g, t the root of V(t) = V0
-        const Eigen::MatrixXd Z = sys.ldlt.solve(B);
+        Eigen::MatrixXd Z = std::move(B);
+        sys.factor.solve(Z);
         Points3 xm = snapshot.middleRows(base, m.num_particles);
         for (int j = 0; j < nf; ++j) xm.row(m.free[j] - base) = Z.row(j).head<3>();
         if (fresh) {
@@ -493,9 +618,11 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
       }
       if (info_.residual < o.step_tolerance) break;
     }
-    // new contacts?
+    // new contacts? (after the last round, the final projection below detects them)
+    if (round + 1 == o.max_contact_rounds) break;
     const int added = detect_bone_contacts(ctx, x, ws.contact_bone, ws.contact_target_rest,
-                                           ws.contact_normal_rest, true, nullptr) +
+                                           ws.contact_normal_rest, ws.checked_at, ws.clearance,
+                                           true, nullptr) +
                       detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
     if (added == 0) break;
   }
@@ -506,7 +633,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
   // particles held
   std::vector<char> held(N, 0);
   detect_bone_contacts(ctx, x, ws.contact_bone, ws.contact_target_rest, ws.contact_normal_rest,
-                       true, nullptr);
+                       ws.checked_at, ws.clearance, true, nullptr);
   for (int p = 0; p < N; ++p) {
     const int b = ws.contact_bone[p];
     if (b < 0) continue;
@@ -518,19 +645,24 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
       held[p] = 1;
     }
   }
-  detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
-  for (const MusclePair& pr : ws.pairs) {
-    const Vec3 d = x.row(pr.p) - x.row(pr.q);
-    const double dist = d.norm();
-    if (dist >= pr.allowed_m) continue;
-    const Vec3 n = dist > 1e-12 ? Vec3(d / dist)
-                                : Vec3((model.rest.row(pr.p) - model.rest.row(pr.q)).normalized());
-    const bool p_fixed = model.role[pr.p] == ParticleRole::fixed || held[pr.p];
-    const bool q_fixed = model.role[pr.q] == ParticleRole::fixed || held[pr.q];
-    if (p_fixed && q_fixed) continue;
-    const double share_p = p_fixed ? 0.0 : (q_fixed ? 1.0 : 0.5);
-    x.row(pr.p) += (share_p * (pr.allowed_m - dist) * n).transpose();
-    x.row(pr.q) -= ((1.0 - share_p) * (pr.allowed_m - dist) * n).transpose();
+  for (int pass = 0; pass < 3; ++pass) {  // Gauss-Seidel passes over the pairs
+    detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
+    bool moved = false;
+    for (const MusclePair& pr : ws.pairs) {
+      const Vec3 d = x.row(pr.p) - x.row(pr.q);
+      const double dist = d.norm();
+      if (dist >= pr.allowed_m) continue;
+      const Vec3 n = dist > 1e-12 ? Vec3(d / dist)
+                                  : Vec3((model.rest.row(pr.p) - model.rest.row(pr.q)).normalized());
+      const bool p_fixed = model.role[pr.p] == ParticleRole::fixed || held[pr.p];
+      const bool q_fixed = model.role[pr.q] == ParticleRole::fixed || held[pr.q];
+      if (p_fixed && q_fixed) continue;
+      const double share_p = p_fixed ? 0.0 : (q_fixed ? 1.0 : 0.5);
+      x.row(pr.p) += (share_p * (pr.allowed_m - dist) * n).transpose();
+      x.row(pr.q) -= ((1.0 - share_p) * (pr.allowed_m - dist) * n).transpose();
+      moved = true;
+    }
+    if (!moved) break;
   }
   for (const MusclePair& pr : ws.pairs) held[pr.p] = held[pr.q] = 1;
   if (o.hold_volume)
@@ -556,7 +688,8 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
   std::vector<double> depth(nm, 0.0), overlap(nm, 0.0);
   std::vector<int> no_bone_contact = ws.contact_bone;  // metrics only
   std::vector<Vec3> unused_t(N), unused_n(N);
-  detect_bone_contacts(ctx, x, no_bone_contact, unused_t, unused_n, false, &depth);
+  detect_bone_contacts(ctx, x, no_bone_contact, unused_t, unused_n, ws.checked_at, ws.clearance,
+                       false, &depth);
   std::vector<MusclePair> no_pairs;
   std::unordered_set<long long> no_keys;
   detect_muscle_pairs(model, x, no_pairs, no_keys, false, &overlap);

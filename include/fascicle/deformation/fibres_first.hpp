@@ -156,7 +156,8 @@ struct FibresFirstInfo {
   int frame = -1;                 // frames solved so far - 1
   int iterations = 0;             // local/global iterations (all rounds)
   int contact_rounds = 0;
-  int factorisations = 0;         // muscle systems (re)factorised this frame
+  int factorisations = 0;         // muscle systems factorised anew this frame
+  int factor_updates = 0;         // muscle factors modified by low-rank updates this frame
   int volume_iterations = 0;      // final volume steps
   double residual = std::numeric_limits<double>::quiet_NaN();  // last step / mean spring length
 };
