@@ -25,6 +25,9 @@ function requireSetup() {
   if (!fs.existsSync(chromiumPath)) missing.push(`chromium at ${chromiumPath} (install it with \`make deps\`, Debian package chromium)`);
   if (!fs.existsSync(path.join(here, '..', 'node_modules', 'playwright-core')))
     missing.push('viewer/node_modules (run `make build`, which runs npm ci in viewer/)');
+  const assets = process.env.FASCICLE_VIEWER_DIR || path.join(here, '..', 'dist');
+  if (!fs.existsSync(path.join(assets, 'viewer.js')))
+    missing.push(`the built viewer ${path.join(assets, 'viewer.js')} (run \`make build\`, which runs the Vite build)`);
   if (missing.length) throw new Error(`viewer browser tests cannot run; missing: ${missing.join('; ')}`);
 }
 
@@ -116,6 +119,13 @@ test('report.html opens from disk: scene, scrubbing, plots, muscle toggle', asyn
   assert.notEqual(await plotImage(page), plotBefore, 'the plot did not change on scrubbing');
   assert.match(await page.locator('#timeline .time').innerText(), /t = 1\.000 s/);
   await page.screenshot({ path: path.join(artifacts, 'report-mid-frame.png') });
+
+  // Colour the fibres by force: the legend says so (N) and the fibres' colours change.
+  const strainColours = await scenePixels(page);
+  await page.locator('#colour-mode').selectOption('force');
+  assert.match(await page.locator('#legend').innerText(), /fibre force \(N\)/);
+  assert.ok(meanAbsDiff(strainColours, await scenePixels(page)) > 0.01, 'fibre colours unchanged by the force scale');
+  await page.locator('#colour-mode').selectOption('strain');
 
   // Select another muscle: its name and plots appear.
   const muscle = objects.find((o) => o.name.startsWith('muscle:')).name.slice('muscle:'.length);
