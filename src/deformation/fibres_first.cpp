@@ -629,42 +629,51 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
 
   // final projection (seed 002's rule, applied to the constraints the iterations left unmet):
   // particles below their bone contact's target plane onto it, pairs of muscles still too close
-  // pushed apart; then each muscle's volume restored along its correction direction with those
-  // particles held
+  // pushed apart, each muscle's volume restored along its correction direction with those
+  // particles held; then once more the pairs and bones (the volume step moves the other particles)
   std::vector<char> held(N, 0);
+  auto project_onto_bones = [&] {
+    for (int p = 0; p < N; ++p) {
+      const int b = ws.contact_bone[p];
+      if (b < 0) continue;
+      const Vec3 target = motions[b] * ws.contact_target_rest[p];
+      const Vec3 n = motions[b].linear() * ws.contact_normal_rest[p];
+      const double below = (target - Vec3(x.row(p).transpose())).dot(n);
+      if (below > 0.0) {
+        x.row(p) += below * n.transpose();
+        held[p] = 1;
+      }
+    }
+  };
+  auto push_pairs_apart = [&] {
+    for (int pass = 0; pass < 3; ++pass) {  // Gauss-Seidel passes over the pairs
+      detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
+      bool moved = false;
+      for (const MusclePair& pr : ws.pairs) {
+        const Vec3 d = x.row(pr.p) - x.row(pr.q);
+        const double dist = d.norm();
+        if (dist >= pr.allowed_m) continue;
+        const Vec3 n = dist > 1e-12 ? Vec3(d / dist)
+                                    : Vec3((model.rest.row(pr.p) - model.rest.row(pr.q)).normalized());
+        const bool p_fixed = model.role[pr.p] == ParticleRole::fixed || held[pr.p] == 1;
+        const bool q_fixed = model.role[pr.q] == ParticleRole::fixed || held[pr.q] == 1;
+        if (p_fixed && q_fixed) continue;
+        const double share_p = p_fixed ? 0.0 : (q_fixed ? 1.0 : 0.5);
+        x.row(pr.p) += (share_p * (pr.allowed_m - dist) * n).transpose();
+        x.row(pr.q) -= ((1.0 - share_p) * (pr.allowed_m - dist) * n).transpose();
+        moved = true;
+      }
+      if (!moved) break;
+    }
+    for (const MusclePair& pr : ws.pairs) {  // held by the volume step (2: movable by pairs)
+      held[pr.p] = std::max<char>(held[pr.p], 2);
+      held[pr.q] = std::max<char>(held[pr.q], 2);
+    }
+  };
   detect_bone_contacts(ctx, x, ws.contact_bone, ws.contact_target_rest, ws.contact_normal_rest,
                        ws.checked_at, ws.clearance, true, nullptr);
-  for (int p = 0; p < N; ++p) {
-    const int b = ws.contact_bone[p];
-    if (b < 0) continue;
-    const Vec3 target = motions[b] * ws.contact_target_rest[p];
-    const Vec3 n = motions[b].linear() * ws.contact_normal_rest[p];
-    const double below = (target - Vec3(x.row(p).transpose())).dot(n);
-    if (below > 0.0) {
-      x.row(p) += below * n.transpose();
-      held[p] = 1;
-    }
-  }
-  for (int pass = 0; pass < 3; ++pass) {  // Gauss-Seidel passes over the pairs
-    detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
-    bool moved = false;
-    for (const MusclePair& pr : ws.pairs) {
-      const Vec3 d = x.row(pr.p) - x.row(pr.q);
-      const double dist = d.norm();
-      if (dist >= pr.allowed_m) continue;
-      const Vec3 n = dist > 1e-12 ? Vec3(d / dist)
-                                  : Vec3((model.rest.row(pr.p) - model.rest.row(pr.q)).normalized());
-      const bool p_fixed = model.role[pr.p] == ParticleRole::fixed || held[pr.p];
-      const bool q_fixed = model.role[pr.q] == ParticleRole::fixed || held[pr.q];
-      if (p_fixed && q_fixed) continue;
-      const double share_p = p_fixed ? 0.0 : (q_fixed ? 1.0 : 0.5);
-      x.row(pr.p) += (share_p * (pr.allowed_m - dist) * n).transpose();
-      x.row(pr.q) -= ((1.0 - share_p) * (pr.allowed_m - dist) * n).transpose();
-      moved = true;
-    }
-    if (!moved) break;
-  }
-  for (const MusclePair& pr : ws.pairs) held[pr.p] = held[pr.q] = 1;
+  project_onto_bones();
+  push_pairs_apart();
   if (o.hold_volume)
     for (int mi = 0; mi < nm; ++mi) {
       const FibreBundle& m = model.muscles[mi];
@@ -682,6 +691,8 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
         x.middleRows(m.first_particle, m.num_particles) = xm;
       }
     }
+  push_pairs_apart();
+  project_onto_bones();
 
   // results and checks
   std::vector<FibreBundleFrame> frames(nm);
