@@ -25,6 +25,7 @@ struct RunArgs {
   std::string activations;
   std::vector<std::string> muscles;
   std::vector<std::string> geometry;
+  std::vector<std::string> outputs;
   std::string representation;
   double activation = -1.0;
   double specific_tension = 25.0;  // N/cm²
@@ -82,8 +83,9 @@ void run(const RunArgs& args) {
   if (!args.activations.empty())
     add_activations(model, read_table(args.activations), args.activations, trajectory);
 
-  std::vector<std::string> names;
-  for (const auto& w : spec.outputs) names.push_back(w.type);
+  std::vector<std::string> names = args.outputs;
+  if (names.empty())
+    for (const auto& w : spec.outputs) names.push_back(w.type);
   if (names.empty()) names = get_default_writer_names();
   auto writers = make_writers(registry, names);
   std::vector<FrameWriter*> use;
@@ -120,6 +122,9 @@ void add_run_commands(CLI::App& app, Invocation& run_action) {
                   "Muscle representation for every muscle (surface_first, blended_surface, action_line, ...)");
   cmd->add_option("--specific-tension", args->specific_tension,
                   "σ in N/cm² for generated volumes, V = F0/σ · l0")->check(CLI::PositiveNumber)->capture_default_str();
+  cmd->add_option("--outputs", args->outputs,
+                  "Writers (comma-separated): paraview, sto, csv, summary, sketch, report; default: the scene's or all but sketch")
+      ->delimiter(',');
   cmd->add_option("--fps", args->fps, "Output frame rate (Hz); default: the scene's")->check(CLI::PositiveNumber);
   cmd->add_option("--frames", args->frames, "Stop after this many frames")->check(CLI::PositiveNumber);
   cmd->callback([&run_action, args] { run_action.action = [args] { run(*args); }; });

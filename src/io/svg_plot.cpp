@@ -107,11 +107,11 @@ std::string render_svg_plot(const PlotSpec& spec) {
   // Series.
   for (size_t k = 0; k < spec.series.size(); ++k) {
     const PlotSeries& s = spec.series[k];
-    const char* colour = kColours[k % std::size(kColours)];
+    const std::string colour = s.colour.empty() ? std::string(kColours[k % std::size(kColours)]) : escape(s.colour);
     if (s.markers) {
       for (size_t i = 0; i < s.x.size(); ++i) {
         if (!std::isfinite(s.x[i]) || !std::isfinite(s.y[i])) continue;
-        o << "<circle cx=\"" << X(s.x[i]) << "\" cy=\"" << Y(s.y[i]) << "\" r=\"3.5\" fill=\""
+        o << "<circle cx=\"" << X(s.x[i]) << "\" cy=\"" << Y(s.y[i]) << "\" r=\"" << s.marker_radius_px << "\" fill=\""
           << colour << "\"/>\n";
       }
     } else {

@@ -118,6 +118,7 @@ void register_builtins(Registry& r) {
   r.writers.add("sto", make_sto_writer);
   r.writers.add("csv", make_csv_writer);
   r.writers.add("summary", make_summary_writer);
+  r.writers.add("sketch", make_sketch_writer);
 }
 
 Registry make_default_registry() {

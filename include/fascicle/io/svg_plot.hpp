@@ -12,6 +12,8 @@ struct PlotSeries {
   std::string name;          // legend entry
   std::vector<double> x, y;  // same length; non-finite points break the line
   bool markers = false;      // draw points instead of a line
+  double marker_radius_px = 3.5;
+  std::string colour;        // CSS colour; empty: the palette's next colour
 };
 
 struct PlotSpec {

@@ -43,6 +43,9 @@ std::unique_ptr<FrameWriter> make_paraview_writer();
 std::unique_ptr<FrameWriter> make_sto_writer();
 std::unique_ptr<FrameWriter> make_csv_writer();
 std::unique_ptr<FrameWriter> make_summary_writer();
+// "sketch": OUT/<basename>_sketch.svg, a side view (x horizontal; y or z up) of the first frame:
+// bone vertices, each muscle's fibres and action line.
+std::unique_ptr<FrameWriter> make_sketch_writer();
 
 }  // namespace fascicle
 
