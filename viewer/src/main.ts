@@ -368,8 +368,11 @@ class App {
       const x = ex.data[0];
       const series: uPlot.Series[] = [{ label: ex.columns[0] }];
       const palette = ['#b8322a', '#2a6db8', '#2a9d5c', '#9d5c2a', '#7a2ab8', '#555'];
-      ex.columns.slice(1).forEach((c, k) => series.push({ label: c, stroke: palette[k % palette.length], width: 1.5 }));
-      new uPlot({ width: Math.min(900, page.clientWidth - 40), height: 260, series, scales: { x: { time: false } } },
+      // Lengths and curve derivatives start hidden (other units); click the legend to show them.
+      ex.columns.slice(1).forEach((c, k) => series.push({ label: c, stroke: palette[k % palette.length], width: 1.5,
+        show: !(c.startsWith('d_') || c.endsWith('_m')) }));
+      new uPlot({ width: Math.min(900, page.clientWidth - 40), height: 260, series, scales: { x: { time: false } },
+        axes: [{ label: ex.columns[0] }, {}] },
         ex.data as uPlot.AlignedData, wrap);
       if (!x) wrap.append(el('div', {}, 'empty table'));
     }

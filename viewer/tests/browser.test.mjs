@@ -39,6 +39,11 @@ before(async () => {
   fs.mkdirSync(artifacts, { recursive: true });
   tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'fascicle-viewer-test-'));
   demoDir = path.join(tmp, 'demo');
+  // The Hill curves and an isometric experiment beside the run: the report gets an experiments page.
+  for (const args of [['muscle', 'curves'], ['muscle', 'experiment', 'isometric']]) {
+    const e = spawnSync(cli, ['--quiet', ...args, '--out', path.join(demoDir, 'experiments')], { encoding: 'utf8' });
+    assert.equal(e.status, 0, `fascicle ${args.join(' ')} failed: ${e.stderr}`);
+  }
   const r = spawnSync(cli, ['--quiet', '--threads', '2', 'demo', '--out', demoDir, '--fps', '10'], { encoding: 'utf8' });
   assert.equal(r.status, 0, `fascicle demo failed: ${r.stderr}`);
   const profile = path.join(tmp, 'chromium-profile');
@@ -145,6 +150,12 @@ test('report.html opens from disk: scene, scrubbing, plots, muscle toggle', asyn
   await page.locator('#muscle-search').fill(muscle.slice(0, 5));
   const shown = await page.locator('#muscle-list .row[data-muscle]:not(.hidden)').count();
   assert.ok(shown >= 1 && shown < objects.filter((o) => o.name.startsWith('muscle:')).length, `search shows ${shown}`);
+
+  // Muscle experiments page: one plot per table found beside the run.
+  await page.locator('header nav button[data-page="experiments"]').click();
+  for (const name of ['isometric', 'force_length', 'force_velocity', 'tendon_force_length'])
+    assert.equal(await page.locator(`#page .plot[data-experiment="${name}"] canvas`).count(), 1, `experiment plot ${name}`);
+  await page.screenshot({ path: path.join(artifacts, 'report-experiments.png') });
 
   // Summary page.
   await page.locator('header nav button[data-page="summary"]').click();
