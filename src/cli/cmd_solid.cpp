@@ -1,4 +1,5 @@
-// `fascicle solid fit|info|export`: B-spline solid muscles (docs/bspline-solids.md).
+// `fascicle solid fit|info|export|simulate`: B-spline solid muscles (docs/bspline-solids.md,
+// docs/solid-dynamics.md).
 #include "commands.hpp"
 
 #include "fascicle/bspline/fibres.hpp"
@@ -8,7 +9,14 @@
 #include "fascicle/bspline/volume.hpp"
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/units.hpp"
+#include "fascicle/dynamics/solid_dynamics.hpp"
 #include "fascicle/io/mesh_io.hpp"
+#include "fascicle/io/polydata.hpp"
+#include "fascicle/io/table.hpp"
+#include "fascicle/io/vtk_series.hpp"
+#include "fascicle/core/atomic_file.hpp"
+
+#include <spdlog/spdlog.h>
 
 #include <fmt/format.h>
 
@@ -53,6 +61,123 @@ std::array<int, 3> parse_triple(const std::string& text, const char* what) {
                             what, text));
   }
   return v;
+}
+
+struct SimulateArgs {
+  std::string solid, out, activation = "1", fix = "origin,insertion", integrator = "backward-euler",
+              volume = "exact";
+  double duration = 0.5, dt = 1e-3, frame_dt = 0.01, tendon = 0.0, pennation = 0.0;
+  double c1 = 2e3, damping = 0.0, explicit_safety = 0.5;
+  bool gravity = false;
+};
+
+// Excitation over time: a constant in [0, 1] or the first data column of a .sto/.mot/.csv table.
+std::function<double(double)> make_excitation(const std::string& text) {
+  char* end = nullptr;
+  const double v = std::strtod(text.c_str(), &end);
+  if (end && *end == '\0' && end != text.c_str()) {
+    if (!(v >= 0.0 && v <= 1.0))
+      throw_usage(fmt::format("--activation {} is outside [0, 1]", text));
+    return [v](double) { return v; };
+  }
+  auto table = std::make_shared<Table>(read_table(text));
+  if (table->columns() < 1 || table->rows() < 1)
+    throw_bad_input("the activation table has no data column", ErrorContext{.file = text});
+  return [table](double t) { return std::clamp(calc_row_at(*table, t)[0], 0.0, 1.0); };
+}
+
+// One frame of the ParaView series: boundary surface, fibre curves, hexahedral volume.
+void write_solid_frame(const std::filesystem::path& dir, VtkSeriesWriter& series,
+                       const BSplineSolid& rest, const Points3& P, int frame, double t) {
+  BSplineSolid s = rest;
+  s.P = P;
+  const BoundaryTessellation b = make_boundary_tessellation(s, 3);
+  const std::string stem = fmt::format("{:05d}", frame);
+  write_polydata(dir / ("boundary_" + stem + ".vtp"), make_polydata(b.mesh));
+  write_polylines_vtp(dir / ("fibres_" + stem + ".vtp"), calc_fibre_curves(s, 5, 5, 25));
+  const VolumeTessellation v = make_volume_tessellation(s, 2);
+  write_hexahedra_vtu(dir / ("volume_" + stem + ".vtu"), v.V, v.hexes);
+  series.add(t, series.find_or_add_part("boundary"), "boundary_" + stem + ".vtp");
+  series.add(t, series.find_or_add_part("fibres"), "fibres_" + stem + ".vtp");
+  series.add(t, series.find_or_add_part("volume"), "volume_" + stem + ".vtu");
+  series.commit();
+}
+
+void run_simulate(const SimulateArgs& a) {
+  const BSplineSolid rest = read_solid(a.solid);
+  SolidDynamicsSpec spec;
+  spec.ground.c1_Pa = a.c1;
+  spec.ground.c2_Pa = 0.5 * a.c1;
+  spec.rayleigh_alpha_1_s = a.damping;
+  spec.tendon_fraction_start = spec.tendon_fraction_end = a.tendon;
+  spec.pennation_rad = a.pennation;
+  if (!a.gravity) spec.gravity_m_s2.setZero();
+  if (a.volume == "exact") spec.volume = VolumeMethod::exact;
+  else if (a.volume == "penalty") spec.volume = VolumeMethod::penalty;
+  else if (a.volume == "none") spec.volume = VolumeMethod::none;
+  else throw_usage("--volume must be exact, penalty or none");
+  std::stringstream fixes(a.fix);
+  std::string item;
+  while (std::getline(fixes, item, ',')) {
+    if (item == "origin") spec.attachments.push_back({"origin", -1, find_end_layer(rest, 0)});
+    else if (item == "insertion") spec.attachments.push_back({"insertion", -1, find_end_layer(rest, 1)});
+    else if (item != "none" && !item.empty())
+      throw_usage(fmt::format("--fix takes origin, insertion or none, got '{}'", item));
+  }
+  SolverOptions o;
+  if (a.integrator == "backward-euler") o.integrator = Integrator::backward_euler;
+  else if (a.integrator == "symplectic-euler") o.integrator = Integrator::symplectic_euler;
+  else if (a.integrator == "quasi-static") o.integrator = Integrator::quasi_static;
+  else throw_usage("--integrator must be backward-euler, symplectic-euler or quasi-static");
+  o.explicit_safety = a.explicit_safety;
+  if (!(a.dt > 0.0) || !(a.duration > 0.0) || !(a.frame_dt >= a.dt))
+    throw_usage("need dt > 0, duration > 0 and frame-dt >= dt");
+  const auto excitation = make_excitation(a.activation);
+  auto model = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(rest, spec));
+  SolidDynamicsSolver solver(model, o);
+
+  const std::filesystem::path dir(a.out);
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) throw_bad_input("cannot create the output folder: " + ec.message(), ErrorContext{.file = a.out});
+  VtkSeriesWriter series(dir / "solid.pvd");
+  std::string csv = "time_s,volume_m3,volume_error,mean_fibre_length_m,mean_fibre_stretch,"
+                    "mean_pennation_rad,kinetic_J,elastic_J,activation,newton_iterations\n";
+  auto record = [&](int iterations) {
+    const SolidMetrics mm = solver.calc_metrics({});
+    csv += fmt::format("{:.6f},{:.9e},{:.6e},{:.6e},{:.6f},{:.6f},{:.6e},{:.6e},{:.4f},{}\n",
+                       mm.time_s, mm.volume_m3, mm.volume_error, mm.mean_fibre_length_m,
+                       mm.mean_fibre_stretch, mm.mean_pennation_rad, mm.energies.kinetic_J,
+                       mm.energies.elastic_J, mm.activation, iterations);
+    write_file_atomically(dir / "metrics.csv", [&](std::ostream& os) { os << csv; });
+  };
+  int frame = 0;
+  write_solid_frame(dir, series, rest, solver.get_state().P, frame++, 0.0);
+  record(0);
+  const int frames = static_cast<int>(std::ceil(a.duration / a.frame_dt - 1e-9));
+  const int sub = std::max(1, static_cast<int>(std::round(a.frame_dt / a.dt)));
+  for (int f = 1; f <= frames; ++f) {
+    int iterations = 0;
+    try {
+      for (int k = 0; k < sub; ++k) {
+        StepInputs in;
+        in.excitation = excitation(solver.get_state().time_s);
+        iterations += solver.step(a.frame_dt / sub, in).newton_iterations;
+      }
+    } catch (const Error& e) {
+      // The last good state is the solver's: write it as the final frame, then report.
+      write_solid_frame(dir, series, rest, solver.get_state().P, frame++, solver.get_state().time_s);
+      record(iterations);
+      throw;
+    }
+    write_solid_frame(dir, series, rest, solver.get_state().P, frame++, solver.get_state().time_s);
+    record(iterations);
+  }
+  const SolidMetrics mm = solver.calc_metrics({});
+  fmt::print("simulated {:.3f} s of '{}' ({} frames): volume error {:.2e}, mean fibre stretch {:.4f}, "
+             "mean pennation {:.2f} deg; wrote {}\n",
+             mm.time_s, rest.name, frame, mm.volume_error, mm.mean_fibre_stretch,
+             mm.mean_pennation_rad * 180.0 / M_PI, a.out);
 }
 
 void print_solid_info(const BSplineSolid& s) {
@@ -143,6 +268,32 @@ void add_solid_commands(CLI::App& app, Invocation& run) {
     auto path = std::make_shared<std::string>();
     cmd->add_option("solid", *path, "Solid (.json)")->required();
     cmd->callback([path, &run] { run.action = [path] { print_solid_info(read_solid(*path)); }; });
+  }
+
+  // simulate
+  {
+    CLI::App* cmd = solid->add_subcommand(
+        "simulate", "Simulate a solid muscle (seed 000 ch. 4): ParaView series and metrics.csv");
+    auto a = std::make_shared<SimulateArgs>();
+    cmd->add_option("solid", a->solid, "Solid (.json)")->required();
+    cmd->add_option("--out", a->out, "Output folder")->required();
+    cmd->add_option("--activation", a->activation,
+                    "Excitation: a constant in [0, 1] or a .sto/.mot/.csv table (first column)");
+    cmd->add_option("--duration", a->duration, "Simulated time (s)");
+    cmd->add_option("--dt", a->dt, "Integration step (s)");
+    cmd->add_option("--frame-dt", a->frame_dt, "Output frame interval (s)");
+    cmd->add_option("--fix", a->fix, "Attached ends: origin,insertion | origin | insertion | none");
+    cmd->add_option("--integrator", a->integrator,
+                    "backward-euler | symplectic-euler | quasi-static");
+    cmd->add_option("--volume", a->volume, "exact | penalty | none");
+    cmd->add_option("--tendon", a->tendon, "Fraction of the fibre range at each end that is tendon");
+    cmd->add_option("--pennation", a->pennation, "Rest fibre angle to the fibre parameter (rad)");
+    cmd->add_option("--c1", a->c1, "Mooney-Rivlin c1 of the ground substance (Pa); c2 = c1/2");
+    cmd->add_option("--damping", a->damping, "Mass-proportional Rayleigh damping (1/s)");
+    cmd->add_flag("--gravity", a->gravity, "Apply gravity (-z, 9.81 m/s^2)");
+    cmd->add_option("--explicit-safety", a->explicit_safety,
+                    "Symplectic Euler sub-step as a fraction of the stability limit 2/w_max");
+    cmd->callback([a, &run] { run.action = [a] { run_simulate(*a); }; });
   }
 
   // export

@@ -22,7 +22,10 @@ Transform get_body_pose(const std::vector<Transform>& X_now_rest, int b);
 void calc_forces_into(const SolidDynamicsModel& model, const Points3& P, const Points3& V,
                       double activation, bool with_stiffness,
                       const std::vector<Transform>& X_now_rest, ForceEvaluation& out,
-                      double volume_hessian_scale = 0.0);
+                      double volume_hessian_scale = 0.0, const Points3* P_start = nullptr,
+                      double step_h = 0.0);
+// P_start, step_h (backward Euler): the force–velocity factor uses the fibre stretch rate
+// (λ − λ_start)/h of the step instead of the velocities V.
 // volume_hessian_scale: adds that multiple of the Hessian of V (by the model's quadrature) to the
 // stiffness only (the Lagrange multiplier or penalty pressure times ∂²V).
 

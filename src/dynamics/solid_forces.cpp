@@ -66,9 +66,23 @@ double calc_volume_and_flat_gradient(const SolidDynamicsModel& m, const Points3&
 namespace {
 
 // Stress and energy density of all material terms at one quadrature point.
+// The force–velocity factor: fixed, or implicit in the step from the fibre stretch rate
+// (λ(F) − λ_n)/h (so that its viscous effect enters the tangent). Clamped to [0, 1.8].
+struct ForceVelocity {
+  double fixed = 1.0;
+  bool implicit = false;
+  double lambda_n = 1.0, inv_h_vmax = 0.0;
+  double calc(const Mat3& F, const Vec3& a0) const {
+    if (!implicit) return fixed;
+    const double v = ((F * a0).norm() - lambda_n) * inv_h_vmax;
+    return std::clamp(degroote_force_velocity(v).value, 0.0, 1.8);
+  }
+};
+
 StressAndEnergy calc_material(const SolidDynamicsSpec& s, const QuadraturePoint& q, const Mat3& F,
-                              double activation, double fv) {
+                              double activation, const ForceVelocity& fvm) {
   StressAndEnergy out;
+  const double fv = (activation > 0.0 && !q.tendon) ? fvm.calc(F, q.fibre_rest) : 1.0;
   if (s.hyperelastic) {
     MooneyRivlinParameters g = s.ground;
     if (q.tendon) {
@@ -107,7 +121,8 @@ StressAndEnergy calc_material(const SolidDynamicsSpec& s, const QuadraturePoint&
 
 void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Points3& V,
                       double activation, bool with_stiffness, const std::vector<Transform>& X,
-                      ForceEvaluation& out, double volume_hessian_scale) {
+                      ForceEvaluation& out, double volume_hessian_scale, const Points3* P_start,
+                      double step_h) {
   const int n = static_cast<int>(P.rows());
   const SolidDynamicsSpec& s = m.spec;
   out.force.setZero(3 * n);
@@ -141,13 +156,19 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
     for (int a = 0; a < q.count; ++a) F += P.row(idx[a]).transpose() * g[a].transpose();
     const double J = F.determinant();
     if (!(J > 0.0)) throw_inverted(m, q, J);
-    double fv = 1.0;
-    if (V.rows() == n && !q.tendon && activation > 0.0) {
+    ForceVelocity fv;
+    if (P_start && step_h > 0.0 && !q.tendon && activation > 0.0) {
+      Mat3 Fn = Mat3::Zero();
+      for (int a = 0; a < q.count; ++a) Fn += P_start->row(idx[a]).transpose() * g[a].transpose();
+      fv.implicit = true;
+      fv.lambda_n = (Fn * q.fibre_rest).norm();
+      fv.inv_h_vmax = 1.0 / (step_h * vmax);
+    } else if (V.rows() == n && !q.tendon && activation > 0.0) {
       Mat3 Fdot = Mat3::Zero();
       for (int a = 0; a < q.count; ++a) Fdot += V.row(idx[a]).transpose() * g[a].transpose();
       const Vec3 Fa = F * q.fibre_rest;
       const double ldot = Fa.dot(Fdot * q.fibre_rest) / Fa.norm();
-      fv = degroote_force_velocity(ldot / vmax).value;
+      fv.fixed = std::clamp(degroote_force_velocity(ldot / vmax).value, 0.0, 1.8);
     }
     const StressAndEnergy se = calc_material(s, q, F, activation, fv);
     out.energy_J += q.weight_m3 * se.energy_density_Pa;
@@ -155,7 +176,8 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
     for (int a = 0; a < q.count; ++a)
       out.force.segment<3>(3 * idx[a]) -= q.weight_m3 * (se.P * g[a]);
     if (!K) continue;
-    // Tangent dP/dF by central differences of the analytic stress (fv frozen over the step).
+    // Tangent dP/dF by central differences of the analytic stress (with the implicit fv: its
+    // viscous part too).
     const double h = 1e-6 * std::max(1.0, F.norm());
     for (int l = 0; l < 3; ++l)
       for (int k = 0; k < 3; ++k) {

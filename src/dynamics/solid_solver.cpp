@@ -304,7 +304,9 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   VecX x = x_tilde;
   for (int i = 0; i < 3 * n; ++i)
     if (w.fixed_dof[i]) x[i] = target[i];
-  const Points3 V_start = s.V;  // force–velocity factor frozen over the step
+  const Points3 V_start = s.V;
+  const Points3 P_start = s.P;  // force–velocity from the step's stretch rate (implicit)
+  const Points3* fv_from = quasi ? nullptr : &P_start;
   // Volume: the penalty enters with its Gauss–Newton rank-one Hessian c g gᵀ (Sherman–Morrison);
   // its damping acts on (V − V_n)/h so that it has the potential d/(2 V0 h) (V − V_n)². The exact
   // constraint enters Newton as a Lagrange multiplier λ on the linearised constraint
@@ -334,24 +336,29 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     if (exact) phi += lambda * (fe.volume_m3 - V0);  // the Lagrangian at the current multiplier
     return phi;
   };
+  // Residual of the step equations without the multiplier term; g receives the masked ∇V.
+  auto residual = [&](const VecX& xx, const ForceEvaluation& fe, VecX& g) {
+    VecX r = inertia / (h * h) * apply_mass(m.mass_matrix, xx - x_tilde) - fe.force - f_ext;
+    if (has_D && !quasi) r += apply_lower(w.D, xx - x_n) / h;
+    if (penalty || exact) {
+      g = fe.volume_gradient;
+      for (int i = 0; i < 3 * n; ++i)
+        if (w.fixed_dof[i]) g[i] = 0.0;  // masked: the attachments hold those points
+      if (d_vol > 0.0) r += (d_vol * (fe.volume_m3 - V_n)) * g;
+    }
+    for (int i = 0; i < 3 * n; ++i)
+      if (w.fixed_dof[i]) r[i] = 0.0;
+    return r;
+  };
   const double tol = options_.newton_tolerance * w.size_m;
-  calc_forces_into(m, unflatten_points(x), V_start, a, false, in.X_now_rest, w.fe);
+  calc_forces_into(m, unflatten_points(x), V_start, a, false, in.X_now_rest, w.fe, 0.0, fv_from, h);
   bool factored = false;
   bool converged = false;
   for (int it = 0; it < options_.max_newton_iterations; ++it) {
     ++rep.newton_iterations;
     const VecX d = x - x_n;
-    VecX r = inertia / (h * h) * apply_mass(m.mass_matrix, x - x_tilde) - w.fe.force - f_ext;
-    if (has_D && !quasi) r += apply_lower(w.D, d) / h;
     VecX g;
-    if (penalty || exact) {
-      g = w.fe.volume_gradient;
-      for (int i = 0; i < 3 * n; ++i)
-        if (w.fixed_dof[i]) g[i] = 0.0;  // masked: the attachments hold those points
-      if (d_vol > 0.0) r += (d_vol * (w.fe.volume_m3 - V_n)) * g;
-    }
-    for (int i = 0; i < 3 * n; ++i)
-      if (w.fixed_dof[i]) r[i] = 0.0;
+    VecX r = residual(x, w.fe, g);
     // A lagged factorisation from an earlier step is kept while Newton converges quickly.
     const bool reuse = options_.reuse_factorisation_steps > 0 && it == 0 && w.factor_age >= 0 &&
                        w.factor_age < options_.reuse_factorisation_steps && w.factor_h == h;
@@ -361,7 +368,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
       factored = true;
     } else if (!factored || !modified || slow) {
       calc_forces_into(m, unflatten_points(x), V_start, a, true, in.X_now_rest, w.fe,
-                       volume_curvature());
+                       volume_curvature(), fv_from, h);
       Eigen::Map<VecX> Av(w.A.valuePtr(), w.A.nonZeros());
       Av = Eigen::Map<const VecX>(w.fe.stiffness.valuePtr(), Av.size()) +
            (inertia / (h * h)) * w.inertia_values;
@@ -401,13 +408,20 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     for (int ls = 0; ls < 10; ++ls, alpha *= 0.5) {
       const VecX xt = x + alpha * y;
       try {
-        calc_forces_into(m, unflatten_points(xt), V_start, a, false, in.X_now_rest, trial_fe);
+        calc_forces_into(m, unflatten_points(xt), V_start, a, false, in.X_now_rest, trial_fe, 0.0,
+                         fv_from, h);
       } catch (const Error& e) {
         if (e.kind() == ErrorKind::numerical) continue;
         throw;
       }
       const double phi_t = merit(xt, trial_fe);
+      // The implicit force–velocity term has no potential: a clear drop of the residual is
+      // accepted too.
+      VecX gt;
+      VecX rt = residual(xt, trial_fe, gt);
+      if (exact) rt += lambda * gt;
       if (phi_t <= phi + 1e-10 * std::abs(phi) + 1e-14 ||
+          rt.lpNorm<Eigen::Infinity>() < 0.5 * rep.residual ||
           alpha * y.lpNorm<Eigen::Infinity>() < tol) {
         x = xt;
         std::swap(w.fe.force, trial_fe.force);
