@@ -4,6 +4,8 @@
 
 #include "fascicle/core/error.hpp"
 
+#include <omp.h>
+
 #include <Eigen/CholmodSupport>
 #include <Eigen/SparseCholesky>
 
@@ -163,6 +165,12 @@ SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_act
 // ---------------------------------------------------------------------------------------------
 // Solver
 
+// Debian's CHOLMOD is built with OpenMP and opens a thread team in its supernodal kernels. Our
+// parallelism is over muscles (TBB); nested OpenMP teams on top of it only wake sleeping threads
+// (measured: 25 % of a frame in futex wake-ups on two cores). Limit the calling thread's OpenMP
+// team to itself before each CHOLMOD call (the ICV is per thread, so this is cheap and local).
+void use_single_threaded_cholmod() { omp_set_num_threads(1); }
+
 // One sparse Cholesky factorisation (CHOLMOD supernodal LL^T or Eigen's simplicial LDL^T).
 struct SparseCholesky {
   Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> cholmod;
@@ -170,10 +178,12 @@ struct SparseCholesky {
   SparseSolverKind kind = SparseSolverKind::cholmod_supernodal;
 
   void analyse(const SparseMatrix& K) {
+    use_single_threaded_cholmod();
     if (kind == SparseSolverKind::cholmod_supernodal) cholmod.analyzePattern(K);
     else ldlt.analyzePattern(K);
   }
   bool factorise(const SparseMatrix& K) {
+    use_single_threaded_cholmod();
     if (kind == SparseSolverKind::cholmod_supernodal) {
       cholmod.factorize(K);
       return cholmod.info() == Eigen::Success;
@@ -182,6 +192,7 @@ struct SparseCholesky {
     return ldlt.info() == Eigen::Success;
   }
   Eigen::MatrixXd solve(const Eigen::MatrixXd& rhs) const {
+    use_single_threaded_cholmod();
     if (kind == SparseSolverKind::cholmod_supernodal) return cholmod.solve(rhs);
     return ldlt.solve(rhs);
   }
