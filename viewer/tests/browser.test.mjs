@@ -240,10 +240,16 @@ test('a folder that is not a run, and a run with a missing frame, are explained 
   const damaged = path.join(tmp, 'damaged');
   fs.cpSync(demoDir, damaged, { recursive: true });
   fs.rmSync(path.join(damaged, 'viewer', 'frames', '00007.bin'));
+  // ... and as if the run had stopped early.
+  const manifestPath = path.join(damaged, 'viewer', 'manifest.json');
+  const manifest = JSON.parse(fs.readFileSync(manifestPath, 'utf8'));
+  Object.assign(manifest, { complete: false, frames_expected: 30 });
+  fs.writeFileSync(manifestPath, JSON.stringify(manifest));
   server = await startView(damaged);
   try {
     const page = await openViewer(server.url);
     assert.match(await page.locator('#notices').innerText(), /1 frame file\(s\) are missing.*00007\.bin/);
+    assert.match(await page.locator('#notices').innerText(), /Run incomplete: 21 of 30 frames were written/);
     assert.equal(await page.evaluate(() => window.fascicle.frameCount), 20);
     await page.close();
   } finally {

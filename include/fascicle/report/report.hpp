@@ -18,7 +18,7 @@ class FrameWriter;
 struct ReportOptions {
   // Budget of the embedded frame data in report.html (bytes before base64); frames are
   // subsampled evenly (first and last kept) when the run needs more.
-  std::size_t html_frame_budget_bytes = 24u << 20;
+  std::size_t html_frame_budget_bytes = 12u << 20;
   // Folder with the built viewer (viewer.js, viewer.css); empty: find_viewer_assets().
   std::filesystem::path viewer_dir;
 };
