@@ -69,6 +69,7 @@ struct Quantiser {
     for (int k = 0; k < 3; ++k) scale[k] = extent[k] > 0 ? 65535.0 / extent[k] : 0.0;
   }
   uint16_t encode(double x, int k) const {
+    if (!std::isfinite(x)) return 0;  // a failed frame's NaN: no valid code, keep the cast defined
     const double q = std::round((x - lo[k]) * scale[k]);
     return static_cast<uint16_t>(std::clamp(q, 0.0, 65535.0));
   }
@@ -95,7 +96,7 @@ Points3 get_points(ByteReader& r, uint32_t n, PositionEncoding enc, const Quanti
 }
 
 void extend(ViewerBox& box, bool& any, const Points3& P) {
-  if (P.rows() == 0) return;
+  if (P.rows() == 0 || !P.allFinite()) return;  // non-finite points do not stretch the box
   const Vec3 lo = P.colwise().minCoeff().transpose(), hi = P.colwise().maxCoeff().transpose();
   box.lo = any ? box.lo.cwiseMin(lo).eval() : lo;
   box.hi = any ? box.hi.cwiseMax(hi).eval() : hi;

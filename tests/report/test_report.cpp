@@ -140,6 +140,22 @@ TEST(ViewerData, Uint16QuantisationErrorIsWithinHalfAStep) {
             0.6 * encode_viewer_frame(f, PositionEncoding::float32).size());
 }
 
+TEST(ViewerData, NonFinitePositionsNeitherStretchTheBoxNorBreakTheEncoding) {
+  std::mt19937 rng(5);
+  ViewerFrame f = make_random_frame(rng);
+  const ViewerBox finite = calc_viewer_box(f);
+  ViewerFrame bad = f;
+  bad.muscles[0].surface(3, 1) = std::numeric_limits<double>::quiet_NaN();
+  bad.muscles[0].surface(4, 2) = std::numeric_limits<double>::infinity();
+  const ViewerBox box = calc_viewer_box(bad);
+  EXPECT_TRUE(box.lo.allFinite() && box.hi.allFinite());
+  EXPECT_TRUE(((box.hi - box.lo).array() <= (finite.hi - finite.lo).array() + 1e-15).all());
+  const ViewerFrame g = decode_viewer_frame(encode_viewer_frame(bad, PositionEncoding::uint16, box), box);
+  EXPECT_TRUE(g.muscles[0].surface.allFinite());
+  EXPECT_LT((g.muscles[1].action_line - f.muscles[1].action_line).cwiseAbs().maxCoeff(),
+            (box.hi - box.lo).maxCoeff() / 65535.0);
+}
+
 TEST(ViewerData, MeshRoundTripAndDamagedFilesAreBadInput) {
   ViewerMesh mesh;
   mesh.body_vertices = {Points3::Random(6, 3)};

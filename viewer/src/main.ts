@@ -236,7 +236,7 @@ class App {
       const plot = new uPlot({
         width, height: 120, legend: { show: false }, cursor: { show: true },
         scales: { x: { time: false } },
-        axes: [{ size: 28 }, { size: 62, values: (_u: uPlot, vals: number[]) => vals.map(tick) }],
+        axes: [{ size: 28 }, { size: 72, values: (_u: uPlot, vals: number[]) => vals.map(tick) }],
         series: [{}, { stroke: `rgb(${mu.color.map((c) => Math.round(c * 255)).join(',')})`, width: 1.5 }],
         hooks: {
           draw: [(u: uPlot) => {
