@@ -293,7 +293,10 @@ Derivation derive() {
   const auto unit = [](const Vec3& v) {
     return json::array({std::round(v.x() * 1e6) / 1e6, std::round(v.y() * 1e6) / 1e6, std::round(v.z() * 1e6) / 1e6});
   };
-  const auto round_to = [](double x, double step) { return std::round(x / step) * step; };
+  const auto round_to = [](double x, double step) {  // x / (1/step): the shortest decimal prints
+    const double k = std::round(1.0 / step);
+    return std::round(x * k) / k;
+  };
   json s;
   s["fascicle_scene"] = 1;
   s["name"] = "vh_shank";
@@ -579,6 +582,11 @@ TEST(ExampleVhShank, LandmarksLieOnTheirBonesAndTheAxesAreAnatomical) {
           break;
         }
     EXPECT_GE(area, 20) << m.name << ": origin radius captures too few vertices";
+    // The bellies have no tendons: the insertion area holds no belly vertex (docs/examples.md).
+    const Vec3 ins = r.landmarks.at(m.insertion).p;
+    double nearest = std::numeric_limits<double>::infinity();
+    for (Eigen::Index i = 0; i < V.rows(); ++i) nearest = std::min(nearest, (V.row(i).transpose() - ins).norm());
+    EXPECT_GT(nearest, 40.0 * kMm) << m.name;
   }
   // The axes: x of the data is lateral for this right leg, the ankle axis points laterally, is
   // nearly perpendicular to the tibia, and positive rotation about it lifts the toes (dorsiflexion).
