@@ -7,6 +7,9 @@
 #include <Eigen/SparseCholesky>
 #include <benchmark/benchmark.h>
 
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <memory>
 
 using namespace fascicle;
@@ -117,6 +120,48 @@ void BM_SymplecticEulerStep(benchmark::State& state) {
   state.counters["substeps"] = static_cast<double>(sub) / steps;
 }
 BENCHMARK(BM_SymplecticEulerStep)->Unit(benchmark::kMillisecond);
+
+// Stability study (docs/solid-dynamics.md): for ground-substance stiffness c1 (range(0), Pa), the
+// explicit limit 2/ω_max and the largest backward-Euler step (of 1, 2, 5, ... 100 ms) that takes a
+// stretched 2 x 2 x 6 cm block (origin fixed) through 0.1 s without failing or halving (counters,
+// in ms). The passive Blemker fibre term (σmax P1 P2 ≈ 100 kPa for stretch) is always present.
+void BM_StabilityStudy(benchmark::State& state) {
+  const double c1 = static_cast<double>(state.range(0));
+  LatticeDesign d = make_cubical_lattice(Vec3(0, 0, 0), Vec3(0.02, 0.02, 0.06), {2, 2, 2}, {4, 4, 6});
+  SolidDynamicsSpec s;
+  s.ground.c1_Pa = c1;
+  s.ground.c2_Pa = 0.0;
+  s.gravity_m_s2.setZero();
+  s.attachments.push_back({"origin", -1, find_end_layer(d.solid, 0)});
+  auto m = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(d.solid, s));
+  SolidState start;
+  start.P = d.solid.P;
+  start.P.col(2) *= 1.2;  // volume-preserving stretch
+  start.P.col(0) /= std::sqrt(1.2);
+  start.P.col(1) /= std::sqrt(1.2);
+  start.V = Points3::Zero(start.P.rows(), 3);
+  double explicit_ms = 0.0, implicit_ms = 0.0;
+  for (auto _ : state) {
+    explicit_ms = 2.0 / calc_max_frequency(*m, d.solid.P, 0.0) * 1e3;
+    for (double dt_ms : {1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0}) {
+      SolverOptions o;
+      o.max_step_halvings = 0;
+      SolidDynamicsSolver solver(m, o);
+      solver.set_state(start);
+      try {
+        for (double t = 0.0; t < 0.1 - 1e-9; t += dt_ms * 1e-3) solver.step(dt_ms * 1e-3, {});
+        implicit_ms = dt_ms;
+      } catch (const std::exception& e) {
+        if (std::getenv("FASCICLE_DEBUG_DYN")) std::fprintf(stderr, "%g ms: %s\n", dt_ms, e.what());
+        break;
+      }
+    }
+  }
+  state.counters["explicit_limit_ms"] = explicit_ms;
+  state.counters["implicit_largest_ms"] = implicit_ms;
+}
+BENCHMARK(BM_StabilityStudy)->Arg(1000)->Arg(10000)->Arg(100000)->Arg(1000000)->Arg(10000000)
+    ->Iterations(1)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 

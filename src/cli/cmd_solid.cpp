@@ -67,7 +67,7 @@ struct SimulateArgs {
   std::string solid, out, activation = "1", fix = "origin,insertion", integrator = "backward-euler",
               volume = "exact";
   double duration = 0.5, dt = 1e-3, frame_dt = 0.01, tendon = 0.0, pennation = 0.0;
-  double c1 = 2e3, damping = 0.0, explicit_safety = 0.5;
+  double c1 = 2e3, damping = 0.0, explicit_safety = 0.5, tendon_modulus = 2e6;
   bool gravity = false;
 };
 
@@ -110,6 +110,7 @@ void run_simulate(const SimulateArgs& a) {
   spec.ground.c2_Pa = 0.5 * a.c1;
   spec.rayleigh_alpha_1_s = a.damping;
   spec.tendon_fraction_start = spec.tendon_fraction_end = a.tendon;
+  spec.tendon_modulus_Pa = a.tendon_modulus;
   spec.pennation_rad = a.pennation;
   if (!a.gravity) spec.gravity_m_s2.setZero();
   if (a.volume == "exact") spec.volume = VolumeMethod::exact;
@@ -288,6 +289,7 @@ void add_solid_commands(CLI::App& app, Invocation& run) {
     cmd->add_option("--volume", a->volume, "exact | penalty | none");
     cmd->add_option("--tendon", a->tendon, "Fraction of the fibre range at each end that is tendon");
     cmd->add_option("--pennation", a->pennation, "Rest fibre angle to the fibre parameter (rad)");
+    cmd->add_option("--tendon-modulus", a->tendon_modulus, "Along-fibre modulus of the tendon (Pa)");
     cmd->add_option("--c1", a->c1, "Mooney-Rivlin c1 of the ground substance (Pa); c2 = c1/2");
     cmd->add_option("--damping", a->damping, "Mass-proportional Rayleigh damping (1/s)");
     cmd->add_flag("--gravity", a->gravity, "Apply gravity (-z, 9.81 m/s^2)");

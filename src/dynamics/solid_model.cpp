@@ -129,9 +129,6 @@ SolidDynamicsModel compile_solid_dynamics(const BSplineSolid& rest, const SolidD
   const int f = static_cast<int>(rest.fibre_direction);
   const BSplineBasis& fb = rest.basis[f];
   const double f_lo = fb.get_lower(), f_hi = fb.get_upper();
-  Vec3 dir_material = Vec3::Zero();
-  dir_material[f] = std::cos(spec.pennation_rad);
-  if (spec.pennation_towards != f) dir_material[spec.pennation_towards] = std::sin(spec.pennation_rad);
   std::vector<Eigen::Triplet<double>> mass_triplets;
   for (const SpanPoint& qw : g[2])
     for (const SpanPoint& qv : g[1])
@@ -161,7 +158,15 @@ SolidDynamicsModel compile_solid_dynamics(const BSplineSolid& rest, const SolidD
           m.support_N.push_back(sp.N[a]);
           m.support_g.push_back(JinvT * sp.dN[a]);
         }
-        q.fibre_rest = (J * dir_material).normalized();
+        // Rest fibre: the fibre-parameter tangent tilted in space by the pennation angle towards
+        // the tangent of the chosen cross direction (its part orthogonal to the fibre tangent).
+        const Vec3 t_f = J.col(f).normalized();
+        Vec3 t_c = J.col(spec.pennation_towards);
+        t_c -= t_c.dot(t_f) * t_f;
+        q.fibre_rest = (spec.pennation_towards != f && t_c.norm() > 0.0)
+                           ? Vec3(std::cos(spec.pennation_rad) * t_f +
+                                  std::sin(spec.pennation_rad) * t_c.normalized())
+                           : t_f;
         const double frac = (q.material[f] - f_lo) / (f_hi - f_lo);
         q.tendon = frac < spec.tendon_fraction_start || frac > 1.0 - spec.tendon_fraction_end;
         for (int a = 0; a < q.count; ++a)

@@ -354,6 +354,9 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   calc_forces_into(m, unflatten_points(x), V_start, a, false, in.X_now_rest, w.fe, 0.0, fv_from, h);
   bool factored = false;
   bool converged = false;
+  int nonmonotone_left = 3;
+  bool shift_changed = false;
+  double shift = 0.0;  // Levenberg–Marquardt shift: A + shift·M/h² when Newton's direction fails
   for (int it = 0; it < options_.max_newton_iterations; ++it) {
     ++rep.newton_iterations;
     const VecX d = x - x_n;
@@ -366,12 +369,13 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     const bool slow = factored && it >= 4 && modified && rep.factorisations == 0;
     if (reuse) {
       factored = true;
-    } else if (!factored || !modified || slow) {
+    } else if (!factored || !modified || slow || shift_changed) {
+      shift_changed = false;
       calc_forces_into(m, unflatten_points(x), V_start, a, true, in.X_now_rest, w.fe,
                        volume_curvature(), fv_from, h);
       Eigen::Map<VecX> Av(w.A.valuePtr(), w.A.nonZeros());
       Av = Eigen::Map<const VecX>(w.fe.stiffness.valuePtr(), Av.size()) +
-           (inertia / (h * h)) * w.inertia_values;
+           ((inertia + shift) / (h * h)) * w.inertia_values;
       if (has_D && !quasi) Av += Eigen::Map<const VecX>(w.D.valuePtr(), Av.size()) / h;
       for (int p : w.zero_positions) Av[p] = 0.0;
       for (int p : w.diag_positions) Av[p] = 1.0;
@@ -404,7 +408,17 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     double phi = merit(x, w.fe);
     double alpha = 1.0;
     bool accepted = false;
-    ForceEvaluation trial_fe;
+    ForceEvaluation trial_fe, full_fe;
+    bool full_ok = false;  // the full step is not inverted (kept for a non-monotone step)
+    auto accept = [&](const VecX& xt, ForceEvaluation& fe) {
+      x = xt;
+      std::swap(w.fe.force, fe.force);
+      w.fe.energy_J = fe.energy_J;
+      w.fe.active_energy_J = fe.active_energy_J;
+      w.fe.volume_m3 = fe.volume_m3;
+      std::swap(w.fe.volume_gradient, fe.volume_gradient);
+      accepted = true;
+    };
     for (int ls = 0; ls < 10; ++ls, alpha *= 0.5) {
       const VecX xt = x + alpha * y;
       try {
@@ -413,6 +427,10 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
       } catch (const Error& e) {
         if (e.kind() == ErrorKind::numerical) continue;
         throw;
+      }
+      if (ls == 0) {
+        full_ok = true;
+        full_fe = trial_fe;
       }
       const double phi_t = merit(xt, trial_fe);
       // The implicit force–velocity term has no potential: a clear drop of the residual is
@@ -423,15 +441,28 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
       if (phi_t <= phi + 1e-10 * std::abs(phi) + 1e-14 ||
           rt.lpNorm<Eigen::Infinity>() < 0.5 * rep.residual ||
           alpha * y.lpNorm<Eigen::Infinity>() < tol) {
-        x = xt;
-        std::swap(w.fe.force, trial_fe.force);
-        w.fe.energy_J = trial_fe.energy_J;
-        w.fe.active_energy_J = trial_fe.active_energy_J;
-        w.fe.volume_m3 = trial_fe.volume_m3;
-        std::swap(w.fe.volume_gradient, trial_fe.volume_gradient);
-        accepted = true;
+        accept(xt, trial_fe);
         break;
       }
+    }
+    // An indefinite tangent (isochoric ground substance, λ ∂²V) can give a direction without
+    // decrease: retry from the same point with a growing shift towards M/h² (shorter, more
+    // gradient-like steps).
+    if (!accepted && shift < 1e4) {
+      shift = shift == 0.0 ? 1.0 : 10.0 * shift;
+      shift_changed = true;
+      continue;
+    }
+    if (accepted && shift > 0.0) {
+      shift = shift < 1e-3 ? 0.0 : 0.1 * shift;
+      shift_changed = true;
+    }
+    // Kinks of the fibre laws (at λ = λopt) can make Newton cycle with no decrease along its
+    // direction: a few non-monotone full steps get it past them.
+    if (!accepted && full_ok && nonmonotone_left > 0) {
+      --nonmonotone_left;
+      alpha = 1.0;
+      accept(VecX(x + y), full_fe);
     }
     if (!accepted) {
       // Already at the solution within rounding: the merit cannot decrease any more.

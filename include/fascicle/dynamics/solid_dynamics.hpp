@@ -72,8 +72,10 @@ struct SolidDynamicsSpec {
   bool hyperelastic = true;
   MooneyRivlinParameters ground;
   BlemkerFibreParameters fibre;
-  // Rest fibre direction: the solid's fibre parameter direction, tilted by `pennation_rad` towards
-  // parametric direction `pennation_towards` (material units, bspline/fibres.hpp make_pennate_field).
+  // Rest fibre direction: the tangent of the solid's fibre parameter, tilted in space by
+  // `pennation_rad` towards the tangent of parametric direction `pennation_towards` (its part
+  // orthogonal to the fibre tangent). On a fitted cylindrical lattice (u radial) this gives a
+  // conical, bipennate-like arrangement about the muscle axis.
   double pennation_rad = 0.0;
   int pennation_towards = 0;
 
