@@ -2,8 +2,10 @@
 // one backward-Euler step of a 6 x 6 x 10 solid (360 control points), force evaluation,
 // factorisation, and the explicit integrator.
 #include "fascicle/bspline/lattice.hpp"
+#include "fascicle/bspline/tessellation.hpp"
 #include "fascicle/dynamics/solid_dynamics.hpp"
 
+#include <Eigen/Dense>
 #include <Eigen/SparseCholesky>
 #include <benchmark/benchmark.h>
 
@@ -162,6 +164,65 @@ void BM_StabilityStudy(benchmark::State& state) {
 }
 BENCHMARK(BM_StabilityStudy)->Arg(1000)->Arg(10000)->Arg(100000)->Arg(1000000)->Arg(10000000)
     ->Iterations(1)->Unit(benchmark::kMillisecond);
+
+// Generalised coordinates: control points P versus spatial points X = A P sampled at the Greville
+// material points (seed 000 §4.2; A square and invertible, P = A⁻¹ X). Reports the fill of the mass
+// and stiffness matrices in X (M_X = A⁻ᵀ M A⁻¹), the explicit stability limit 2/ω_max with
+// lumped masses in each set of coordinates, and times the dense factorisation the X system needs.
+void BM_SpatialPointCoordinates(benchmark::State& state) {
+  LatticeDesign d = make_cubical_lattice(Vec3(0, 0, 0), Vec3(0.03, 0.03, 0.10), {2, 2, 2}, {6, 6, 10});
+  SolidDynamicsSpec s;
+  s.gravity_m_s2.setZero();
+  s.volume = VolumeMethod::none;
+  auto m = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(d.solid, s));
+  const int n = d.solid.num_control_points();
+  // A: rows = basis values at the Greville points (the same lattice order as P).
+  std::array<std::vector<double>, 3> gr;
+  for (int k = 0; k < 3; ++k) gr[k] = calc_greville_abscissae(d.solid.basis[k]);
+  std::vector<Eigen::Triplet<double>> t;
+  for (int k = 0; k < d.solid.num_control(2); ++k)
+    for (int j = 0; j < d.solid.num_control(1); ++j)
+      for (int i = 0; i < d.solid.num_control(0); ++i)
+        append_basis_row(d.solid, Vec3(gr[0][i], gr[1][j], gr[2][k]), {0, 0, 0}, d.solid.index(i, j, k), t);
+  Eigen::SparseMatrix<double> A(n, n);
+  A.setFromTriplets(t.begin(), t.end());
+  const Eigen::MatrixXd Ainv = Eigen::MatrixXd(A).inverse();
+  const Eigen::MatrixXd MX = Ainv.transpose() * Eigen::MatrixXd(m->mass_matrix) * Ainv;
+  const double tiny = 1e-9 * MX.cwiseAbs().maxCoeff();
+  const double fill = static_cast<double>((MX.cwiseAbs().array() > tiny).count()) / (double(n) * n);
+  // Explicit limits with lumped masses: control points (model) versus points (row sums of M_X,
+  // i.e. each point's share of the mass; positive here).
+  const ForceEvaluation fe = calc_forces(*m, d.solid.P, {}, 0.0, true);
+  Eigen::SparseMatrix<double> Kf;
+  Kf = fe.stiffness.selfadjointView<Eigen::Lower>();
+  const Eigen::MatrixXd K = Eigen::MatrixXd(Kf);
+  Eigen::MatrixXd T = Eigen::MatrixXd::Zero(3 * n, 3 * n);  // A⁻¹ per coordinate
+  for (int a = 0; a < n; ++a)
+    for (int b = 0; b < n; ++b)
+      for (int c = 0; c < 3; ++c) T(3 * a + c, 3 * b + c) = Ainv(a, b);
+  const Eigen::MatrixXd KX = T.transpose() * K * T;
+  const VecX mX = MX.rowwise().sum();
+  auto omega = [&](const Eigen::MatrixXd& Kd, const VecX& masses) {
+    VecX sc(3 * n);
+    for (int i = 0; i < 3 * n; ++i) sc[i] = 1.0 / std::sqrt(masses[i / 3]);
+    const Eigen::MatrixXd S = sc.asDiagonal() * Kd * sc.asDiagonal();
+    return std::sqrt(Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(S, Eigen::EigenvaluesOnly)
+                         .eigenvalues().maxCoeff());
+  };
+  const double wP = omega(K, m->lumped_mass), wX = omega(KX, mX);
+  Eigen::MatrixXd sys = KX;
+  for (int i = 0; i < 3 * n; ++i) sys(i, i) += mX[i / 3] / 1e-6;
+  for (auto _ : state) {
+    Eigen::LLT<Eigen::MatrixXd> llt(sys);
+    benchmark::DoNotOptimize(llt.matrixLLT().data());
+  }
+  state.counters["fill_MX"] = fill;
+  state.counters["fill_MP"] = static_cast<double>(m->mass_matrix.nonZeros()) / (double(n) * n);
+  state.counters["explicit_limit_P_ms"] = 2e3 / wP;
+  state.counters["explicit_limit_X_ms"] = 2e3 / wX;
+  state.counters["min_point_mass_g"] = mX.minCoeff() * 1e3;
+}
+BENCHMARK(BM_SpatialPointCoordinates)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 
