@@ -191,8 +191,12 @@ class ReportWriter final : public FrameWriter {
     j["frame_files"] = files;
     for (size_t b : drawn_bodies_) {
       const Body& body = model.bodies[b];
+      // Pose at the default coordinates (4×4 column-major): drawn when no frame was written.
+      std::vector<double> X_default(16, 0.0);
+      if (b < model.X_ground_body_default.size())
+        Eigen::Map<Mat4>(X_default.data()) = model.X_ground_body_default[b].matrix();
       j["bodies"].push_back({{"name", body.name}, {"mass_kg", body.mass_kg},
-                             {"mesh_volume_m3", body.mesh_volume_m3}});
+                             {"mesh_volume_m3", body.mesh_volume_m3}, {"X_ground_default", X_default}});
     }
     if (drawn_bodies_.empty()) j["bodies"] = json::array();
     const auto& names = get_muscle_metric_names();

@@ -280,6 +280,15 @@ TEST(ReportWriter, IncompleteRunAndFrameBudgetAreStatedInTheManifest) {
   std::ifstream in(out / "viewer" / "manifest.json");
   const auto manifest = nlohmann::json::parse(in);
   EXPECT_FALSE(manifest["complete"].get<bool>());
+  // Each drawn body carries its default pose (column-major 4×4) for pages with no frame.
+  for (const auto& jb : manifest["bodies"]) {
+    const BodyIndex b = model.find_body(jb["name"].get<std::string>());
+    ASSERT_TRUE(b.v > 0);
+    const auto X = jb["X_ground_default"].get<std::vector<double>>();
+    ASSERT_EQ(X.size(), 16u);
+    EXPECT_LT((Eigen::Map<const Mat4>(X.data()) - model.X_ground_body_default[b.v].matrix()).cwiseAbs().maxCoeff(),
+              1e-15);
+  }
   EXPECT_EQ(manifest["frames_expected"], 10);
   EXPECT_EQ(manifest["frames_written"], 4);
   const std::string html = read_text(out / "report.html");

@@ -31,7 +31,7 @@ export interface Manifest {
   times_s: number[];
   mesh_file: string;
   frame_files: string[];
-  bodies: { name: string; mass_kg: number; mesh_volume_m3: number }[];
+  bodies: { name: string; mass_kg: number; mesh_volume_m3: number; X_ground_default?: number[] }[];
   metric_names: string[];
   muscles: MuscleInfo[];
   box_m: [number[], number[]];

@@ -51,6 +51,8 @@ export class SceneView {
       const m = new THREE.Mesh(g, boneMaterial);
       m.name = `bone:${body.name}`;
       m.matrixAutoUpdate = false;
+      // The default pose until a frame is shown (and for a run that wrote no frame).
+      if (body.X_ground_default && body.X_ground_default.some((v) => v !== 0)) m.matrix.fromArray(body.X_ground_default);
       this.bones.push(m);
       this.scene.add(m);
     });
@@ -97,7 +99,7 @@ export class SceneView {
   frameModel() {
     const box = new THREE.Box3();
     const { manifest, frames } = this.run;
-    if (manifest.muscles.length && manifest.box_m)
+    if (manifest.muscles.length && manifest.box_m && frames.length > 0)
       box.expandByPoint(new THREE.Vector3(...manifest.box_m[0])).expandByPoint(new THREE.Vector3(...manifest.box_m[1]));
     const step = Math.max(1, Math.floor(frames.length / 8));
     for (let k = 0; k < frames.length; k += step) {
@@ -107,7 +109,8 @@ export class SceneView {
         box.union(m.geometry.boundingBox!.clone().applyMatrix4(X));
       });
     }
-    if (box.isEmpty()) box.setFromObject(this.scene);
+    if (frames.length === 0) this.scene.updateMatrixWorld(true);
+    if (box.isEmpty() || frames.length === 0) box.union(new THREE.Box3().setFromObject(this.scene));
     if (box.isEmpty()) return;
     const centre = box.getCenter(new THREE.Vector3());
     const size = box.getSize(new THREE.Vector3());
@@ -115,7 +118,7 @@ export class SceneView {
     const radius = Math.max(size.length() / 2, 1e-3);
     const vfov = (this.camera.fov * Math.PI) / 180;
     const hfov = 2 * Math.atan(Math.tan(vfov / 2) * this.camera.aspect);
-    const distance = (radius / Math.sin(Math.min(vfov, hfov) / 2)) * 0.9;
+    const distance = radius / Math.sin(Math.min(vfov, hfov) / 2);
     this.camera.up.set(0, 1, 0);
     this.camera.position.copy(centre).add(new THREE.Vector3(0.8, 0.25, 1).normalize().multiplyScalar(distance));
     this.camera.near = distance / 100;
