@@ -642,6 +642,8 @@ TEST(ExampleVhShank, RunsAFewFramesWithVolumeAndContactInvariants) {
   const fs::path scene = example_dir() / "scene.json";
   ASSERT_TRUE(fs::exists(scene));
   test::data_path(kVhFolder + vh_file("Bone_Tibia"));  // fails clearly without the data
+  ASSERT_TRUE(fs::exists(example_dir() / (kSceneDataPrefix + vh_file("Bone_Tibia"))))
+      << "the scene reads its meshes from ../shared/data beside the repository";
   const fs::path out = test::scratch_dir("vh_shank");
   // Two frames: the motion's extremes, −30° and +20°, at 10 Hz.
   Table motion;
