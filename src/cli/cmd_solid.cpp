@@ -68,6 +68,7 @@ struct SimulateArgs {
               volume = "exact";
   double duration = 0.5, dt = 1e-3, frame_dt = 0.01, tendon = 0.0, pennation = 0.0;
   double c1 = 2e3, damping = 0.0, explicit_safety = 0.5, tendon_modulus = 2e6;
+  double release = -1.0;  // quick release: the insertion is let go at this time (s)
   bool gravity = false;
 };
 
@@ -136,6 +137,13 @@ void run_simulate(const SimulateArgs& a) {
   const auto excitation = make_excitation(a.activation);
   auto model = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(rest, spec));
   SolidDynamicsSolver solver(model, o);
+  // Quick release: the same solid with the insertion attachment removed, continued from the state.
+  std::shared_ptr<const SolidDynamicsModel> released;
+  if (a.release >= 0.0) {
+    SolidDynamicsSpec rs = spec;
+    std::erase_if(rs.attachments, [](const AttachmentSpec& x) { return x.name == "insertion"; });
+    released = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(rest, rs));
+  }
 
   const std::filesystem::path dir(a.out);
   std::error_code ec;
@@ -161,6 +169,13 @@ void run_simulate(const SimulateArgs& a) {
     int iterations = 0;
     try {
       for (int k = 0; k < sub; ++k) {
+        if (released && solver.get_state().time_s >= a.release - 1e-12) {
+          SolidDynamicsSolver next(released, o);
+          next.set_state(solver.get_state());
+          solver = std::move(next);
+          released.reset();
+          spdlog::info("released the insertion at t = {:.4f} s", solver.get_state().time_s);
+        }
         StepInputs in;
         in.excitation = excitation(solver.get_state().time_s);
         iterations += solver.step(a.frame_dt / sub, in).newton_iterations;
@@ -293,6 +308,7 @@ void add_solid_commands(CLI::App& app, Invocation& run) {
     cmd->add_option("--c1", a->c1, "Mooney-Rivlin c1 of the ground substance (Pa); c2 = c1/2");
     cmd->add_option("--damping", a->damping, "Mass-proportional Rayleigh damping (1/s)");
     cmd->add_flag("--gravity", a->gravity, "Apply gravity (-z, 9.81 m/s^2)");
+    cmd->add_option("--release", a->release, "Quick release: let the insertion go at this time (s)");
     cmd->add_option("--explicit-safety", a->explicit_safety,
                     "Symplectic Euler sub-step as a fraction of the stability limit 2/w_max");
     cmd->callback([a, &run] { run.action = [a] { run_simulate(*a); }; });
