@@ -3,7 +3,9 @@
 
 #include "fascicle/core/error.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <vector>
 
 namespace fascicle {
@@ -91,19 +93,79 @@ std::array<double, 4> calc_volume_cubic(const Points3& X, const Points3& Y, cons
   return c;
 }
 
-double solve_volume_cubic(const std::array<double, 4>& c, double target) {
-  if (!(std::abs(c[1]) > 0.0)) return std::numeric_limits<double>::quiet_NaN();
-  double t = (target - c[0]) / c[1];
-  for (int it = 0; it < 50; ++it) {
-    const double r = c[0] + t * (c[1] + t * (c[2] + t * c[3])) - target;
-    const double d = c[1] + t * (2.0 * c[2] + 3.0 * t * c[3]);
-    if (!(std::abs(d) > 0.0)) return std::numeric_limits<double>::quiet_NaN();
-    const double step = r / d;
-    t -= step;
-    if (std::abs(step) <= 1e-15 * (1.0 + std::abs(t))) return t;
+namespace {
+
+// The real root of smallest |t| of a0 + a1 t + a2 t^2 + a3 t^3 (NaN when none): the real line is
+// cut at the critical points into monotone pieces, bounded by Cauchy's bound; a piece whose ends
+// differ in sign holds exactly one root, found by bisection to the last bit.
+double find_smallest_real_root(const std::array<double, 4>& a) {
+  int degree = 3;
+  while (degree > 0 && a[degree] == 0.0) --degree;
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  if (degree == 0) return a[0] == 0.0 ? 0.0 : nan;
+  double bound = 0.0;
+  for (int k = 0; k < degree; ++k) bound = std::max(bound, std::abs(a[k] / a[degree]));
+  bound += 1.0;
+  const auto p = [&](double t) { return a[0] + t * (a[1] + t * (a[2] + t * a[3])); };
+  std::vector<double> cuts = {-bound, bound};
+  // critical points: a1 + 2 a2 t + 3 a3 t^2 = 0
+  const double q2 = 3.0 * a[3], q1 = 2.0 * a[2], q0 = a[1];
+  if (q2 != 0.0) {
+    const double disc = q1 * q1 - 4.0 * q2 * q0;
+    if (disc >= 0.0) {
+      const double s = std::sqrt(disc);
+      cuts.push_back((-q1 - s) / (2.0 * q2));
+      cuts.push_back((-q1 + s) / (2.0 * q2));
+    }
+  } else if (q1 != 0.0) {
+    cuts.push_back(-q0 / q1);
   }
-  const double r = c[0] + t * (c[1] + t * (c[2] + t * c[3])) - target;
-  return std::abs(r) <= 1e-12 * std::abs(target) ? t : std::numeric_limits<double>::quiet_NaN();
+  std::sort(cuts.begin(), cuts.end());
+  double best = nan;
+  for (std::size_t k = 0; k + 1 < cuts.size(); ++k) {
+    double lo = std::clamp(cuts[k], -bound, bound), hi = std::clamp(cuts[k + 1], -bound, bound);
+    double plo = p(lo);
+    const double phi = p(hi);
+    double root = nan;
+    if (plo == 0.0) root = lo;
+    else if (phi == 0.0) root = hi;
+    else if ((plo < 0.0) != (phi < 0.0)) {
+      for (int it = 0; it < 200 && hi - lo > 0.0; ++it) {
+        const double mid = 0.5 * (lo + hi);
+        if (mid <= lo || mid >= hi) break;
+        const double pm = p(mid);
+        if ((pm < 0.0) == (plo < 0.0)) {
+          lo = mid;
+          plo = pm;
+        } else {
+          hi = mid;
+        }
+      }
+      root = 0.5 * (lo + hi);
+    }
+    if (std::isfinite(root) && !(std::abs(root) >= std::abs(best))) best = root;
+  }
+  return best;
+}
+
+}  // namespace
+
+double solve_volume_cubic(const std::array<double, 4>& c, double target) {
+  if (std::abs(c[1]) > 0.0) {
+    double t = (target - c[0]) / c[1];
+    for (int it = 0; it < 50; ++it) {
+      const double r = c[0] + t * (c[1] + t * (c[2] + t * c[3])) - target;
+      const double d = c[1] + t * (2.0 * c[2] + 3.0 * t * c[3]);
+      if (!(std::abs(d) > 0.0)) break;
+      const double step = r / d;
+      t -= step;
+      if (!std::isfinite(t)) break;
+      if (std::abs(step) <= 1e-15 * (1.0 + std::abs(t))) return t;
+    }
+    const double r = c[0] + t * (c[1] + t * (c[2] + t * c[3])) - target;
+    if (std::isfinite(t) && std::abs(r) <= 1e-12 * std::abs(target)) return t;
+  }
+  return find_smallest_real_root({c[0] - target, c[1], c[2], c[3]});
 }
 
 }  // namespace fascicle

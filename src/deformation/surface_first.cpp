@@ -179,6 +179,7 @@ struct SparseCholesky {
 
   void analyse(const SparseMatrix& K) {
     use_single_threaded_cholmod();
+    cholmod.cholmod().print = 0;  // failures are reported by the caller, not printed by CHOLMOD
     if (kind == SparseSolverKind::cholmod_supernodal) cholmod.analyzePattern(K);
     else ldlt.analyzePattern(K);
   }
@@ -191,6 +192,7 @@ struct SparseCholesky {
     ldlt.factorize(K);
     return ldlt.info() == Eigen::Success;
   }
+  bool kind_is_ldlt() const { return kind == SparseSolverKind::eigen_simplicial_ldlt; }
   Eigen::MatrixXd solve(const Eigen::MatrixXd& rhs) const {
     use_single_threaded_cholmod();
     if (kind == SparseSolverKind::cholmod_supernodal) return cholmod.solve(rhs);
@@ -261,10 +263,20 @@ void SurfaceFirstSolver::factorise() {
     f.with_contacts.analyse(f.K);
     analysed_contacts_ = true;
   }
-  if (!f.with_contacts.factorise(f.K))
-    throw_numerical("sparse Cholesky factorisation of the Laplacian system failed",
-                    muscle_context(binding_.name, "check the surface for degenerate triangles or "
-                                                  "use the uniform Laplacian"));
+  if (!f.with_contacts.factorise(f.K)) {
+    // The contact weights are large next to the cotangent weights of a poorly shaped mesh, and
+    // the supernodal LL^T can then meet a pivot that rounding made non-positive. Eigen's
+    // simplicial LDL^T (no square roots) factorises the same matrix; keep it for this solver.
+    if (f.with_contacts.kind == SparseSolverKind::cholmod_supernodal) {
+      f.with_contacts.kind = SparseSolverKind::eigen_simplicial_ldlt;
+      f.with_contacts.analyse(f.K);
+    }
+    if (!f.with_contacts.kind_is_ldlt() || !f.with_contacts.factorise(f.K))
+      throw_numerical(fmt::format("sparse factorisation of the Laplacian system with {} bone contacts failed",
+                                  contacts_.size()),
+                      muscle_context(binding_.name, "check the surface for degenerate triangles, lower the "
+                                                    "contact weight or use the uniform Laplacian"));
+  }
   ++info_.factorisations;
 }
 

@@ -39,8 +39,10 @@ Points3 calc_volume_gradient(const Points3& V, const Triangles& F);
 std::array<double, 4> calc_volume_cubic(const Points3& X, const Points3& Y, const Triangles& F,
                                         const Vec3& origin);
 
-// The root of c0 + c1 t + c2 t^2 + c3 t^3 = target nearest to the linearised root, by safeguarded
-// Newton iteration. Returns NaN when no root is found (c1 == 0 or divergence).
+// A real root of c0 + c1 t + c2 t^2 + c3 t^3 = target: Newton's iteration from the linearised root
+// when it converges, otherwise the real root of smallest |t|, bracketed between the critical points
+// and Cauchy's bound and found by bisection. Returns NaN only when there is no real root (a
+// polynomial of even degree that does not reach the target, or all coefficients zero).
 double solve_volume_cubic(const std::array<double, 4>& c, double target);
 
 }  // namespace fascicle
