@@ -60,6 +60,20 @@ after(async () => {
   if (tmp) fs.rmSync(tmp, { recursive: true, force: true });
 });
 
+// Runs a test body; on failure saves a screenshot of every open page next to the other artifacts.
+function withScreenshots(name, body) {
+  return async () => {
+    try {
+      await body();
+    } catch (e) {
+      let k = 0;
+      for (const p of context ? context.pages() : [])
+        await p.screenshot({ path: path.join(artifacts, `failed-${name}-${k++}.png`) }).catch(() => {});
+      throw e;
+    }
+  };
+}
+
 async function openViewer(url) {
   const page = await context.newPage();
   const errors = [];
@@ -107,7 +121,7 @@ async function plotImage(page) {
   return page.evaluate(() => document.querySelector('#plots .plot canvas').toDataURL());
 }
 
-test('report.html opens from disk: scene, scrubbing, plots, muscle toggle', async () => {
+test('report.html opens from disk: scene, scrubbing, plots, muscle toggle', withScreenshots('report', async () => {
   const page = await openViewer(pathToFileURL(path.join(demoDir, 'report.html')).href);
   const { px: first, objects } = await checkScene(page, 'report');
   await page.screenshot({ path: path.join(artifacts, 'report.png') });
@@ -161,7 +175,7 @@ test('report.html opens from disk: scene, scrubbing, plots, muscle toggle', asyn
   await page.locator('header nav button[data-page="summary"]').click();
   assert.match(await page.locator('#run-summary').innerText(), /21 of 21/);
   await page.close();
-});
+}));
 
 function startView(dir, extra = []) {
   const proc = spawn(cli, ['view', dir, '--port', '0', '--max-seconds', '120', ...extra], { stdio: ['ignore', 'pipe', 'pipe'] });
@@ -190,7 +204,7 @@ function rawGet(port, rawPath) {
   });
 }
 
-test('fascicle view serves the run and the viewer; traversal is refused', async () => {
+test('fascicle view serves the run and the viewer; traversal is refused', withScreenshots('view', async () => {
   const { proc, url, port } = await startView(demoDir);
   try {
     const page = await openViewer(url);
@@ -219,9 +233,9 @@ test('fascicle view serves the run and the viewer; traversal is refused', async 
   } finally {
     proc.kill('SIGINT');
   }
-});
+}));
 
-test('a folder that is not a run, and a run with a missing frame, are explained on the page', async () => {
+test('a folder that is not a run, and a run with a missing frame, are explained on the page', withScreenshots('bad-input', async () => {
   const empty = path.join(tmp, 'not-a-run');
   fs.mkdirSync(empty);
   let server = await startView(empty);
@@ -255,4 +269,4 @@ test('a folder that is not a run, and a run with a missing frame, are explained 
   } finally {
     server.proc.kill('SIGINT');
   }
-});
+}));
