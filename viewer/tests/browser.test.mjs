@@ -165,6 +165,17 @@ test('report.html opens from disk: scene, scrubbing, plots, muscle toggle', with
   const shown = await page.locator('#muscle-list .row[data-muscle]:not(.hidden)').count();
   assert.ok(shown >= 1 && shown < objects.filter((o) => o.name.startsWith('muscle:')).length, `search shows ${shown}`);
 
+  // Play at 4× from the first frame: frames advance; pause stops them.
+  await page.evaluate(() => window.fascicle.setFrame(0));
+  await page.locator('#speed').selectOption('4');
+  await page.locator('#play').click();
+  await page.waitForFunction(() => window.fascicle.getFrame() >= 3, null, { timeout: 10000 });
+  await page.locator('#play').click();
+  assert.equal(await page.locator('#play').innerText(), 'Play');
+  const paused = await page.evaluate(() => window.fascicle.getFrame());
+  await page.waitForTimeout(300);
+  assert.equal(await page.evaluate(() => window.fascicle.getFrame()), paused, 'frames advance while paused');
+
   // Muscle experiments page: one plot per table found beside the run.
   await page.locator('header nav button[data-page="experiments"]').click();
   for (const name of ['isometric', 'force_length', 'force_velocity', 'tendon_force_length'])
@@ -270,3 +281,24 @@ test('a folder that is not a run, and a run with a missing frame, are explained 
     server.proc.kill('SIGINT');
   }
 }));
+
+test('the .glb of `fascicle export --gltf` loads in three.js (GLTFLoader)', async () => {
+  const glb = path.join(tmp, 'scene.glb');
+  const r = spawnSync(cli, ['--quiet', 'export', '--gltf', demoDir, '--frame', '10', '--out', glb], { encoding: 'utf8' });
+  assert.equal(r.status, 0, r.stderr);
+  const { GLTFLoader } = await import('three/examples/jsm/loaders/GLTFLoader.js');
+  const buf = fs.readFileSync(glb);
+  const gltf = await new Promise((resolve, reject) =>
+    new GLTFLoader().parse(buf.buffer.slice(buf.byteOffset, buf.byteOffset + buf.byteLength), '', resolve, reject));
+  const byPrefix = (prefix, kind) => {
+    const found = [];
+    gltf.scene.traverse((o) => { if (o[kind] && o.name.startsWith(prefix)) found.push(o); });
+    return found;
+  };
+  assert.equal(byPrefix('bone_', 'isMesh').length, 6);
+  const muscles = byPrefix('muscle_', 'isMesh');
+  assert.equal(muscles.length, 4);
+  assert.ok(muscles.every((m) => m.material.transparent && m.material.opacity < 1), 'muscles are translucent');
+  assert.equal(byPrefix('fibres_', 'isLineSegments').length, 4);
+  assert.equal(byPrefix('action_line_', 'isLineSegments').length, 4);
+});
