@@ -69,6 +69,7 @@ struct SimulateArgs {
   double duration = 0.5, dt = 1e-3, frame_dt = 0.01, tendon = 0.0, pennation = 0.0;
   double c1 = 2e3, damping = 0.0, explicit_safety = 0.5, tendon_modulus = 2e6;
   double release = -1.0;  // quick release: the insertion is let go at this time (s)
+  int reuse = 0;          // keep a factorisation over up to this many steps
   bool gravity = false;
 };
 
@@ -132,6 +133,7 @@ void run_simulate(const SimulateArgs& a) {
   else if (a.integrator == "quasi-static") o.integrator = Integrator::quasi_static;
   else throw_usage("--integrator must be backward-euler, symplectic-euler or quasi-static");
   o.explicit_safety = a.explicit_safety;
+  o.reuse_factorisation_steps = a.reuse;
   if (!(a.dt > 0.0) || !(a.duration > 0.0) || !(a.frame_dt >= a.dt))
     throw_usage("need dt > 0, duration > 0 and frame-dt >= dt");
   const auto excitation = make_excitation(a.activation);
@@ -308,6 +310,8 @@ void add_solid_commands(CLI::App& app, Invocation& run) {
     cmd->add_option("--c1", a->c1, "Mooney-Rivlin c1 of the ground substance (Pa); c2 = c1/2");
     cmd->add_option("--damping", a->damping, "Mass-proportional Rayleigh damping (1/s)");
     cmd->add_flag("--gravity", a->gravity, "Apply gravity (-z, 9.81 m/s^2)");
+    cmd->add_option("--reuse-factorisation", a->reuse,
+                    "Backward Euler: keep a factorisation over up to N steps (lagged Jacobian)");
     cmd->add_option("--release", a->release, "Quick release: let the insertion go at this time (s)");
     cmd->add_option("--explicit-safety", a->explicit_safety,
                     "Symplectic Euler sub-step as a fraction of the stability limit 2/w_max");

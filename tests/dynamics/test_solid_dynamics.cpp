@@ -253,6 +253,31 @@ TEST(SolidIntegrators, StretchedSolidReturnsToRest) {
   EXPECT_NEAR(solver.calc_metrics({}).volume_error, 0.0, 1e-6);
 }
 
+// Shape memory from the spring network alone (no hyperelastic potential).
+TEST(SolidIntegrators, SpringNetworkReturnsToRest) {
+  const BSplineSolid box = make_box({3, 3, 4});
+  SolidDynamicsSpec spec = make_free_spec();
+  spec.hyperelastic = false;
+  spec.spring_modulus_Pa = 2e4;
+  spec.gravity_m_s2.setZero();
+  spec.rayleigh_alpha_1_s = 40.0;
+  auto m = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(box, spec));
+  SolidDynamicsSolver solver(m);
+  SolidState s;
+  s.P = box.P;
+  s.P.col(0) += 0.3 * (s.P.col(2).array() - 0.02).matrix();  // 17° shear
+  s.V = Points3::Zero(box.P.rows(), 3);
+  solver.set_state(s);
+  for (int k = 0; k < 60; ++k) solver.step(0.01, {});
+  // Back to the rest shape up to a rigid motion: pairwise distances are restored.
+  const Points3& P = solver.get_state().P;
+  double err = 0.0;
+  for (Eigen::Index i = 0; i < P.rows(); ++i)
+    for (Eigen::Index j = i + 1; j < P.rows(); ++j)
+      err = std::max(err, std::abs((P.row(i) - P.row(j)).norm() - (box.P.row(i) - box.P.row(j)).norm()));
+  EXPECT_LT(err, 1e-5);
+}
+
 struct ImposedResult {
   double worst_volume_error = 0.0;
   double final_stretch = 0.0;
@@ -369,9 +394,22 @@ TEST(SolidIntegrators, QuasiStaticContractionIsAnEquilibrium) {
   const double peak = calc_internal_forces(*m, s.P, s.activation).lpNorm<Eigen::Infinity>();
   EXPECT_GT(peak, 1.0);
   EXPECT_LT((f - mu * g).lpNorm<Eigen::Infinity>(), 1e-5 * peak);
-  // The belly shortens, the tendons stretch, the volume is kept.
+  // The belly shortens, the (passive, stiffer) tendons stretch, the volume is kept.
   const SolidMetrics mm = solver.calc_metrics(in);
   EXPECT_LT(mm.mean_fibre_stretch, 0.97);
+  double tendon_stretch = 0.0, tendon_w = 0.0;
+  for (const QuadraturePoint& q : m->quadrature) {
+    if (!q.tendon) continue;
+    Mat3 F = Mat3::Zero();
+    for (int a = 0; a < q.count; ++a)
+      F += s.P.row(m->support_index[q.first + a]).transpose() *
+           m->support_g[q.first + a].transpose();
+    tendon_stretch += q.weight_m3 * (F * q.fibre_rest).norm();
+    tendon_w += q.weight_m3;
+  }
+  EXPECT_GT(tendon_stretch / tendon_w, 1.0);
+  // Force balance along the fibres: the tendon's stress E (λ − 1) cannot exceed σmax.
+  EXPECT_LT(tendon_stretch / tendon_w - 1.0, spec.fibre.sigma_max_Pa / spec.tendon_modulus_Pa);
   EXPECT_NEAR(mm.volume_error, 0.0, 1e-6);
 }
 
