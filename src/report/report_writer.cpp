@@ -109,6 +109,7 @@ class ReportWriter final : public FrameWriter {
 
   void begin(const Model& model, const RunInfo& info) override {
     info_ = info;
+    begin_time_ = fs::file_time_type::clock::now();
     viewer_dir_ = info.out_dir / "viewer";
     std::error_code ec;
     fs::remove_all(viewer_dir_ / "frames", ec);
@@ -223,7 +224,9 @@ class ReportWriter final : public FrameWriter {
     }
     j["box_m"] = {{box_.lo.x(), box_.lo.y(), box_.lo.z()}, {box_.hi.x(), box_.hi.y(), box_.hi.z()}};
     std::error_code ec;
-    if (fs::is_regular_file(info_.out_dir / "summary.json", ec)) {
+    // Only a summary.json of this run (a writer listed before "report"), never a stale one.
+    if (fs::is_regular_file(info_.out_dir / "summary.json", ec) &&
+        fs::last_write_time(info_.out_dir / "summary.json", ec) >= begin_time_ && !ec) {
       try {
         std::ifstream in(info_.out_dir / "summary.json");
         j["summary"] = json::parse(in);
@@ -292,6 +295,7 @@ class ReportWriter final : public FrameWriter {
 
   ReportOptions options_;
   RunInfo info_;
+  fs::file_time_type begin_time_;
   fs::path viewer_dir_;
   std::vector<size_t> drawn_bodies_;
   std::string mesh_bytes_;

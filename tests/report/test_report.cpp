@@ -24,6 +24,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <fstream>
 #include <random>
 #include <sstream>
@@ -266,6 +267,9 @@ TEST(ReportWriter, IncompleteRunAndFrameBudgetAreStatedInTheManifest) {
   const Model& model = demo.model;
   const fs::path out = test::scratch_dir("report_incomplete");
   // A budget of a single byte keeps only the first and last frame.
+  // A summary.json left by an earlier run is not embedded.
+  std::ofstream(out / "summary.json") << "{\"stale\": true}";
+  fs::last_write_time(out / "summary.json", fs::file_time_type::clock::now() - std::chrono::hours(1));
   auto writer = make_report_writer({.html_frame_budget_bytes = 1, .viewer_dir = {}});
   writer->begin(model, {out, "demo", 10, 5.0});
   State state = make_state(model);
@@ -280,6 +284,7 @@ TEST(ReportWriter, IncompleteRunAndFrameBudgetAreStatedInTheManifest) {
   std::ifstream in(out / "viewer" / "manifest.json");
   const auto manifest = nlohmann::json::parse(in);
   EXPECT_FALSE(manifest["complete"].get<bool>());
+  EXPECT_FALSE(manifest.contains("summary"));
   // Each drawn body carries its default pose (column-major 4×4) for pages with no frame.
   for (const auto& jb : manifest["bodies"]) {
     const BodyIndex b = model.find_body(jb["name"].get<std::string>());
