@@ -299,7 +299,7 @@ VecX calc_internal_forces(const SolidDynamicsModel& m, const Points3& P, double 
     const Vec3* g = &m.support_g[q.first];
     Mat3 F = Mat3::Zero();
     for (int a = 0; a < q.count; ++a) F += P.row(idx[a]).transpose() * g[a].transpose();
-    SolidDynamicsSpec s = m.spec;
+    const SolidDynamicsSpec& s = m.spec;
     StressAndEnergy se;
     if (s.hyperelastic) {
       MooneyRivlinParameters gr = s.ground;

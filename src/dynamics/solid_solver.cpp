@@ -61,6 +61,8 @@ struct SolidDynamicsSolver::Workspace {
   }
   double size_m = 1.0;
   double last_lambda = 0.0;  // multiplier of the exact volume constraint (warm start)
+  double omega_max = 0.0;    // symplectic Euler: cached largest frequency (rad/s)
+  int omega_age = -1;
 };
 
 namespace {
@@ -138,6 +140,8 @@ void SolidDynamicsSolver::set_state(SolidState s) {
     throw_bad_input(fmt::format("solid state has {} points, the model {}", s.P.rows(), n));
   state_ = std::move(s);
   initial_energy_ = NAN;
+  ws_->omega_age = -1;
+  ws_->factor_age = -1;
 }
 
 void SolidDynamicsSolver::project_volume(SolidState& s, const SolidState& before, double dt,
@@ -186,6 +190,7 @@ StepReport SolidDynamicsSolver::step(double dt, const StepInputs& in) {
       r = try_step(h, in, trial);
     } catch (const Error& e) {
       ws_->factor_age = -1;  // a failed step never leaves a lagged factorisation behind
+      ws_->omega_age = -1;
       if (e.kind() == ErrorKind::numerical && halvings < options_.max_step_halvings) {
         h *= 0.5;
         ++halvings;
@@ -265,7 +270,13 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   const bool has_D = w.D.nonZeros() > 0;
 
   if (options_.integrator == Integrator::symplectic_euler) {
-    const double wmax = calc_max_frequency(m, s.P, a);
+    // ω_max is re-estimated every 20 steps (a full tangent assembly), with a 10 % margin.
+    if (w.omega_age < 0 || w.omega_age >= 20) {
+      w.omega_max = 1.1 * calc_max_frequency(m, s.P, a);
+      w.omega_age = 0;
+    }
+    ++w.omega_age;
+    const double wmax = w.omega_max;
     const double hmax = options_.explicit_safety * 2.0 / std::max(wmax, 1e-12);
     const int ns = std::max(1, static_cast<int>(std::ceil(h / hmax)));
     const double hs = h / ns;
