@@ -4,6 +4,8 @@
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/units.hpp"
 #include "fascicle/io/mesh_io.hpp"
+#include "fascicle/osim/osim_model.hpp"
+#include "fascicle/scene/osim_scene.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -75,8 +77,16 @@ SchemaNode get_scene_schema(const Registry& registry) {
       optional("name", string()),
       optional("units", one_of({"m", "cm", "mm"})),
       optional("geometry_frame", one_of({"body", "ground"})),
-      required("bodies", array(body)),
-      required("joints", array(joint)),
+      optional("bodies", array(body)),
+      optional("joints", array(joint)),
+      optional("opensim_model", object({
+          required("file", string()),
+          optional("muscles", array(string())),
+          optional("geometry", array(string())),
+          optional("specific_tension", number(1e-3)),
+          optional("activation", number(0.0, 1.0)),
+          optional("representation", one_of(registry.muscle_representations.get_names())),
+      })),
       optional("muscles", array(muscle)),
       optional("motion", object({required("file", string()), optional("frame_rate", number(1e-6))})),
       optional("outputs", array(one_of(registry.writers.get_names()))),
@@ -162,97 +172,132 @@ SceneSpec parse_scene(const std::string& text, const std::filesystem::path& path
   spec.name = doc.value("name", path.stem().string());
   spec.geometry_frame = doc.value("geometry_frame", std::string("body")) == "ground" ? GeometryFrame::ground
                                                                                       : GeometryFrame::body;
-  const auto& bodies = doc.at("bodies");
-  for (size_t i = 0; i < bodies.size(); ++i) {
-    const json& j = bodies[i];
-    const std::string ptr = "/bodies/" + std::to_string(i);
-    SceneBodySpec b;
-    b.name = j.at("name");
-    if (j.contains("mesh") && j.contains("meshes"))
-      throw_bad_input("a body has either \"mesh\" or \"meshes\", not both",
-                      r.at(ptr, "list every file under \"meshes\""));
-    if (j.contains("mesh")) b.mesh = r.read_mesh_at(j.at("mesh"), ptr + "/mesh", &b.mesh_file);
-    if (j.contains("meshes")) {
-      // Several closed surfaces (e.g. tibia and fibula) as one rigid body: their union.
-      TriMesh all;
-      const auto& files = j.at("meshes");
-      for (size_t k = 0; k < files.size(); ++k) {
-        std::filesystem::path resolved;
-        const TriMesh part = r.read_mesh_at(files[k], ptr + "/meshes/" + std::to_string(k), &resolved);
-        const auto nv = all.V.rows(), nf = all.F.rows();
-        all.V.conservativeResize(nv + part.V.rows(), 3);
-        all.V.bottomRows(part.V.rows()) = part.V;
-        all.F.conservativeResize(nf + part.F.rows(), 3);
-        all.F.bottomRows(part.F.rows()) = part.F.array() + static_cast<int>(nv);
-        b.mesh_file += (k ? ";" : "") + resolved.string();
+  if (doc.contains("opensim_model")) {
+    // The skeleton, paths and generated muscles of an OpenSim model (docs/opensim-volumes.md).
+    if (doc.contains("bodies") || doc.contains("joints") || doc.contains("muscles"))
+      throw_bad_input("a scene made from an OpenSim model lists no bodies, joints or muscles of its own",
+                      r.at("/opensim_model", "remove \"bodies\", \"joints\" and \"muscles\", or \"opensim_model\""));
+    const json& o = doc.at("opensim_model");
+    std::filesystem::path model_file(o.at("file").get<std::string>());
+    if (model_file.is_relative()) model_file = r.folder / model_file;
+    if (!std::filesystem::exists(model_file))
+      throw_bad_input("OpenSim model '" + model_file.string() + "' does not exist",
+                      r.at("/opensim_model/file", "paths are relative to the scene file's folder"));
+    OsimImportOptions import;
+    for (const auto& g : o.value("geometry", json::array())) {
+      std::filesystem::path dir(g.get<std::string>());
+      import.geometry_dirs.push_back(dir.is_relative() ? r.folder / dir : dir);
+    }
+    import.geometry_dirs.push_back(model_file.parent_path() / ".." / "Geometry");
+    OsimSceneOptions options;
+    for (const auto& m : o.value("muscles", json::array())) options.muscles.push_back(m.get<std::string>());
+    options.belly.specific_tension_Pa = 1e4 * o.value("specific_tension", 25.0);
+    options.activation = o.value("activation", -1.0);
+    if (o.contains("representation")) options.representation = o.at("representation").get<std::string>();
+    try {
+      spec = make_scene_from_osim(read_osim(model_file, import), options);
+    } catch (const Error& e) {
+      ErrorContext ctx = e.context();
+      if (ctx.json_path.empty()) ctx.json_path = "/opensim_model";
+      throw Error(e.kind(), e.message(), ctx);
+    }
+    spec.source = path;
+    spec.name = doc.value("name", spec.name);
+  } else {
+    if (!doc.contains("bodies") || !doc.contains("joints"))
+      throw_bad_input("a scene needs \"bodies\" and \"joints\", or an \"opensim_model\"", r.at(""));
+    const auto& bodies = doc.at("bodies");
+    for (size_t i = 0; i < bodies.size(); ++i) {
+      const json& j = bodies[i];
+      const std::string ptr = "/bodies/" + std::to_string(i);
+      SceneBodySpec b;
+      b.name = j.at("name");
+      if (j.contains("mesh") && j.contains("meshes"))
+        throw_bad_input("a body has either \"mesh\" or \"meshes\", not both",
+                        r.at(ptr, "list every file under \"meshes\""));
+      if (j.contains("mesh")) b.mesh = r.read_mesh_at(j.at("mesh"), ptr + "/mesh", &b.mesh_file);
+      if (j.contains("meshes")) {
+        // Several closed surfaces (e.g. tibia and fibula) as one rigid body: their union.
+        TriMesh all;
+        const auto& files = j.at("meshes");
+        for (size_t k = 0; k < files.size(); ++k) {
+          std::filesystem::path resolved;
+          const TriMesh part = r.read_mesh_at(files[k], ptr + "/meshes/" + std::to_string(k), &resolved);
+          const auto nv = all.V.rows(), nf = all.F.rows();
+          all.V.conservativeResize(nv + part.V.rows(), 3);
+          all.V.bottomRows(part.V.rows()) = part.V;
+          all.F.conservativeResize(nf + part.F.rows(), 3);
+          all.F.bottomRows(part.F.rows()) = part.F.array() + static_cast<int>(nv);
+          b.mesh_file += (k ? ";" : "") + resolved.string();
+        }
+        b.mesh = std::move(all);
       }
-      b.mesh = std::move(all);
-    }
-    if (j.contains("mass")) b.mass_kg = j.at("mass").get<double>();
-    if (j.contains("center_of_mass")) b.center_of_mass = r.unit * get_vec3(j.at("center_of_mass"));
-    if (j.contains("inertia")) {
-      const auto& I = j.at("inertia");  // Ixx, Iyy, Izz, Ixy, Ixz, Iyz (kg m²)
-      Mat3 M;
-      M << I[0], I[3], I[4], I[3], I[1], I[5], I[4], I[5], I[2];
-      b.inertia = M;
-    }
-    b.density_kg_per_m3 = j.value("density", b.density_kg_per_m3);
-    spec.bodies.push_back(std::move(b));
-  }
-  const auto& joints = doc.at("joints");
-  for (size_t i = 0; i < joints.size(); ++i) {
-    const json& j = joints[i];
-    SceneJointSpec js;
-    js.name = j.at("name");
-    js.type = j.at("type");
-    js.parent = j.at("parent");
-    js.child = j.at("child");
-    js.X_parent_F = r.get_frame(j, "location_in_parent", "orientation_in_parent");
-    js.X_child_M = r.get_frame(j, "location_in_child", "orientation_in_child");
-    if (j.contains("axis")) js.axis = get_vec3(j.at("axis"));
-    for (const auto& c : j.value("coordinates", json::array())) {
-      SceneCoordinateSpec cs;
-      cs.name = c.at("name");
-      cs.default_value = c.value("default", 0.0);
-      if (c.contains("range")) {
-        cs.range_min = c["range"][0];
-        cs.range_max = c["range"][1];
+      if (j.contains("mass")) b.mass_kg = j.at("mass").get<double>();
+      if (j.contains("center_of_mass")) b.center_of_mass = r.unit * get_vec3(j.at("center_of_mass"));
+      if (j.contains("inertia")) {
+        const auto& I = j.at("inertia");  // Ixx, Iyy, Izz, Ixy, Ixz, Iyz (kg m²)
+        Mat3 M;
+        M << I[0], I[3], I[4], I[3], I[1], I[5], I[4], I[5], I[2];
+        b.inertia = M;
       }
-      js.coordinates.push_back(cs);
+      b.density_kg_per_m3 = j.value("density", b.density_kg_per_m3);
+      spec.bodies.push_back(std::move(b));
     }
-    spec.joints.push_back(std::move(js));
-  }
-  const json muscles = doc.value("muscles", json::array());
-  for (size_t i = 0; i < muscles.size(); ++i) {
-    const json& j = muscles[i];
-    const std::string ptr = "/muscles/" + std::to_string(i);
-    MuscleSpec m;
-    m.name = j.at("name");
-    m.representation = j.value("representation", m.representation);
-    if (j.contains("mesh")) m.mesh = r.read_mesh_at(j.at("mesh"), ptr + "/mesh", &m.mesh_file);
-    m.origin = r.get_attachment(j.at("origin"));
-    m.insertion = r.get_attachment(j.at("insertion"));
-    for (const auto& v : j.value("via_points", json::array()))
-      m.via_points.push_back({v.at("body"), r.unit * get_vec3(v.at("point"))});
-    if (j.contains("actuator")) {
-      const json& a = j.at("actuator");
-      m.actuator.type = a.value("type", m.actuator.type);
-      m.actuator.model = a.value("model", m.actuator.model);
-      m.actuator.max_isometric_force_N = a.value("max_isometric_force", m.actuator.max_isometric_force_N);
-      m.actuator.optimal_fiber_length_m = a.value("optimal_fiber_length", m.actuator.optimal_fiber_length_m);
-      m.actuator.tendon_slack_length_m = a.value("tendon_slack_length", m.actuator.tendon_slack_length_m);
-      m.actuator.pennation_at_optimal_rad = a.value("pennation_angle", m.actuator.pennation_at_optimal_rad);
-      m.actuator.rigid_tendon = a.value("rigid_tendon", m.actuator.rigid_tendon);
+    const auto& joints = doc.at("joints");
+    for (size_t i = 0; i < joints.size(); ++i) {
+      const json& j = joints[i];
+      SceneJointSpec js;
+      js.name = j.at("name");
+      js.type = j.at("type");
+      js.parent = j.at("parent");
+      js.child = j.at("child");
+      js.X_parent_F = r.get_frame(j, "location_in_parent", "orientation_in_parent");
+      js.X_child_M = r.get_frame(j, "location_in_child", "orientation_in_child");
+      if (j.contains("axis")) js.axis = get_vec3(j.at("axis"));
+      for (const auto& c : j.value("coordinates", json::array())) {
+        SceneCoordinateSpec cs;
+        cs.name = c.at("name");
+        cs.default_value = c.value("default", 0.0);
+        if (c.contains("range")) {
+          cs.range_min = c["range"][0];
+          cs.range_max = c["range"][1];
+        }
+        js.coordinates.push_back(cs);
+      }
+      spec.joints.push_back(std::move(js));
     }
-    m.activation = j.value("activation", m.activation);
-    m.fibre_template = j.value("fibre_template", std::string());
-    const json options = j.value("options", json::object());  // items() must not outlive it
-    for (const auto& [key, value] : options.items()) {
-      if (!value.is_number())
-        throw_bad_input("muscle options must be numbers", r.at(ptr + "/options/" + escape_json_pointer(key)));
-      m.options[key] = value.get<double>();
+    const json muscles = doc.value("muscles", json::array());
+    for (size_t i = 0; i < muscles.size(); ++i) {
+      const json& j = muscles[i];
+      const std::string ptr = "/muscles/" + std::to_string(i);
+      MuscleSpec m;
+      m.name = j.at("name");
+      m.representation = j.value("representation", m.representation);
+      if (j.contains("mesh")) m.mesh = r.read_mesh_at(j.at("mesh"), ptr + "/mesh", &m.mesh_file);
+      m.origin = r.get_attachment(j.at("origin"));
+      m.insertion = r.get_attachment(j.at("insertion"));
+      for (const auto& v : j.value("via_points", json::array()))
+        m.via_points.push_back({v.at("body"), r.unit * get_vec3(v.at("point"))});
+      if (j.contains("actuator")) {
+        const json& a = j.at("actuator");
+        m.actuator.type = a.value("type", m.actuator.type);
+        m.actuator.model = a.value("model", m.actuator.model);
+        m.actuator.max_isometric_force_N = a.value("max_isometric_force", m.actuator.max_isometric_force_N);
+        m.actuator.optimal_fiber_length_m = a.value("optimal_fiber_length", m.actuator.optimal_fiber_length_m);
+        m.actuator.tendon_slack_length_m = a.value("tendon_slack_length", m.actuator.tendon_slack_length_m);
+        m.actuator.pennation_at_optimal_rad = a.value("pennation_angle", m.actuator.pennation_at_optimal_rad);
+        m.actuator.rigid_tendon = a.value("rigid_tendon", m.actuator.rigid_tendon);
+      }
+      m.activation = j.value("activation", m.activation);
+      m.fibre_template = j.value("fibre_template", std::string());
+      const json options = j.value("options", json::object());  // items() must not outlive it
+      for (const auto& [key, value] : options.items()) {
+        if (!value.is_number())
+          throw_bad_input("muscle options must be numbers", r.at(ptr + "/options/" + escape_json_pointer(key)));
+        m.options[key] = value.get<double>();
+      }
+      spec.muscles.push_back(std::move(m));
     }
-    spec.muscles.push_back(std::move(m));
   }
   if (doc.contains("motion")) {
     MotionSpec motion;

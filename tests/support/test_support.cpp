@@ -30,6 +30,12 @@ std::filesystem::path data_path(const std::string& relative) {
   return p;
 }
 
+std::filesystem::path source_path(const std::string& relative) {
+  const std::filesystem::path p = std::filesystem::path(FASCICLE_SOURCE_DIR) / relative;
+  if (!std::filesystem::exists(p)) throw std::runtime_error("repository file missing: " + p.string());
+  return p;
+}
+
 CommandResult run_command(const std::string& command) {
   FILE* pipe = popen(command.c_str(), "r");
   if (pipe == nullptr) return {-1, ""};

@@ -13,6 +13,10 @@ std::filesystem::path data_dir();
 // when it is missing: tests that need real data never pass silently without it.
 std::filesystem::path data_path(const std::string& relative);
 
+// A file of this repository (e.g. "examples/vh_shank/scene.json"); fails the test clearly when it
+// does not exist.
+std::filesystem::path source_path(const std::string& relative);
+
 // Runs a shell command and captures its standard output (append " 2>&1" to the command to
 // capture standard error too). exit_code is -1 when the command did not exit normally.
 struct CommandResult {

@@ -1,0 +1,63 @@
+// examples/gait2392_walk: an OpenSim model as a scene file, its right leg's muscles generated as
+// volumes and deformed surface-first along their wrapping paths while the model walks.
+#include "fascicle/io/table.hpp"
+
+#include "test_support.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <string>
+
+namespace fascicle {
+namespace {
+
+namespace fs = std::filesystem;
+
+long find_column(const Table& t, const std::string& label) {
+  for (size_t c = 0; c < t.labels.size(); ++c)
+    if (t.labels[c] == label) return static_cast<long>(c);
+  return -1;
+}
+
+TEST(ExampleGait2392, RightLegWalksWithVolumesHeld) {
+  test::data_path("opensim/models/gait2392_millard2012muscle.osim");  // fails clearly without the data
+  const fs::path scene = test::source_path("examples/gait2392_walk/scene.json");
+  const fs::path out = test::scratch_dir("gait2392_walk");
+  const auto r = test::run_command(std::string(FASCICLE_CLI_PATH) + " -q run " + scene.string() +
+                                   " --frames 3 --outputs sto,summary --out " + out.string() + " 2>&1");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const Table sto = read_table(out / "gait2392_walk_right_leg_muscles.sto");
+  EXPECT_EQ(sto.rows(), 3);
+  int muscles = 0;
+  for (const std::string& label : sto.labels) {
+    const auto dot = label.find('.');
+    if (label.substr(dot + 1) != "relative_volume_change") continue;
+    ++muscles;
+    const std::string m = label.substr(0, dot);
+    EXPECT_EQ(m.substr(m.size() - 2), "_r");
+    const long vol = find_column(sto, label);
+    EXPECT_LT(sto.data.col(vol).cwiseAbs().maxCoeff(), 1e-9) << m;
+    const long mt = find_column(sto, m + ".musculotendon_length_m");
+    ASSERT_GE(mt, 0);
+    EXPECT_GT(sto.data.col(mt).minCoeff(), 0.02) << m;
+    const long force = find_column(sto, m + ".tendon_force_N");
+    ASSERT_GE(force, 0);
+    EXPECT_TRUE(sto.data.col(force).allFinite()) << m;
+  }
+  EXPECT_EQ(muscles, 46);  // gait2392 "*_r": the 43 right-leg muscles and 3 right trunk muscles
+  EXPECT_TRUE(fs::exists(out / "summary.json"));
+}
+
+TEST(ExampleGait2392, UnknownMusclePatternIsBadInput) {
+  const fs::path out = test::scratch_dir("gait2392_bad");
+  const auto r = test::run_command(std::string(FASCICLE_CLI_PATH) + " run --model " +
+                                   test::data_path("opensim/models/gait2392_millard2012muscle.osim").string() +
+                                   " --motion " + test::data_path("opensim/motions/subject01_walk1_ik.mot").string() +
+                                   " --muscles soleus_rr --out " + out.string() + " 2>&1");
+  EXPECT_EQ(r.exit_code, 3) << r.output;
+  EXPECT_NE(r.output.find("soleus_r"), std::string::npos) << r.output;
+}
+
+}  // namespace
+}  // namespace fascicle
