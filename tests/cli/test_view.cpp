@@ -74,6 +74,7 @@ TEST(CliView, DemoWritesReportHtmlAndViewerFiles) {
   EXPECT_EQ(manifest["muscles"].size(), 4u);
   EXPECT_EQ(manifest["bodies"].size(), 6u);
   EXPECT_TRUE(fs::exists(demo / "viewer" / "frames" / "00020.bin"));
+  EXPECT_EQ(manifest["summary"]["frames"], 21);  // this run's summary.json, embedded
   // Self-contained: no external script or style sheet, and well under 20 MB for the demo.
   std::ifstream html_in(demo / "report.html");
   std::stringstream html;
