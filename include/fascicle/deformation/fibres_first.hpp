@@ -129,8 +129,10 @@ struct FibresFirstModel {
 // Builds the model. `bones` are rest-pose meshes in the world frame; they must outlive the model
 // and its solvers. Throws fascicle::Error (bad input, naming the muscle) for a muscle without
 // fibres, a fibre with < 2 points or non-finite or zero length, a bone index out of range, a
-// muscle with no particle fixed to a bone or a part of it connected to none; (usage) for invalid
-// options (stiffness <= 0, particles_per_fibre < 2, ...).
+// muscle with no particle fixed to a bone or a part of it connected to none, fewer than 3 fibres
+// spanning an area when hold_volume is set; (bad input) for non-physical options (stiffness <= 0,
+// particles_per_fibre < 2, ...); (usage) for a null bone query. Cost: one closest-point and one
+// inside query per particle and bone, plus small k-d tree and hull computations.
 FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& muscles,
                                           const std::vector<const MeshQuery*>& bones,
                                           const FibresFirstOptions& options = {});
@@ -141,7 +143,9 @@ struct FibresFirstInput {
   double time_step_s = 0.0;             // dynamic mode only (0: options.default_time_step_s)
 };
 
-// Per muscle results of a frame (NaN until solved).
+// Per muscle results of a frame (NaN until solved). Penetration counts free particles only,
+// beyond their rest depth; overlap is over boundary-fibre particles of different muscles, against
+// min(muscle_margin_m, rest distance).
 struct FibreBundleFrame {
   Points3 particles;  // #particles x 3 (fibre-major: fibre f, particle i at row f * P + i)
   Points3 surface_vertices;  // display surface vertices; triangles: bundle.surface_triangles
@@ -159,7 +163,9 @@ struct FibresFirstInfo {
   int factorisations = 0;         // muscle systems factorised anew this frame
   int factor_updates = 0;         // muscle factors modified by low-rank updates this frame
   int volume_iterations = 0;      // final volume steps
-  double residual = std::numeric_limits<double>::quiet_NaN();  // last step / mean spring length
+  // Stopping measure of the last local/global iteration: the largest particle displacement of
+  // that iteration divided by the muscle's mean rest spring length (max over muscles).
+  double residual = std::numeric_limits<double>::quiet_NaN();
 };
 
 // The per-scene solver. Holds one prefactorised sparse system per muscle (refactorised only for
