@@ -30,35 +30,39 @@ VecX calc_mean_value_coordinates(const TriMesh& mesh, const Vec3& x) {
   }
   for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
     const int id[3] = {mesh.F(f, 0), mesh.F(f, 1), mesh.F(f, 2)};
-    double theta[3], c[3], s[3];
+    // θ_i = 2 asin(l_i / 2) for the chord l_i between the unit vectors; then exactly
+    // sin θ_i = l_i sqrt(1 - l_i²/4) and cos θ_i = 1 - l_i²/2, so a triangle costs three asin and
+    // one sin/cos of h instead of a dozen sines.
+    double theta[3], sin_theta[3], cos_theta[3], c[3], s[3];
     for (int i = 0; i < 3; ++i) {
-      const double l = (u.row(id[(i + 1) % 3]) - u.row(id[(i + 2) % 3])).norm();
-      theta[i] = 2.0 * std::asin(std::min(l / 2.0, 1.0));
+      const double l = std::min((u.row(id[(i + 1) % 3]) - u.row(id[(i + 2) % 3])).norm(), 2.0);
+      theta[i] = 2.0 * std::asin(0.5 * l);
+      sin_theta[i] = l * std::sqrt(std::max(0.0, 1.0 - 0.25 * l * l));
+      cos_theta[i] = 1.0 - 0.5 * l * l;
     }
     const double h = 0.5 * (theta[0] + theta[1] + theta[2]);
     if (M_PI - h < 1e-10) {
       // x lies on this triangle: barycentric coordinates from the angles
       w.setZero();
       for (int i = 0; i < 3; ++i)
-        w[id[i]] = std::sin(theta[i]) * d[id[(i + 2) % 3]] * d[id[(i + 1) % 3]];
+        w[id[i]] = sin_theta[i] * d[id[(i + 2) % 3]] * d[id[(i + 1) % 3]];
       return w / w.sum();
     }
+    const double sin_h = std::sin(h), cos_h = std::cos(h);
     Mat3 U;
     U << u.row(id[0]), u.row(id[1]), u.row(id[2]);
     const double sign = U.determinant() < 0.0 ? -1.0 : 1.0;
     bool coplanar = false;
     for (int i = 0; i < 3; ++i) {
-      c[i] = 2.0 * std::sin(h) * std::sin(h - theta[i]) /
-                 (std::sin(theta[(i + 1) % 3]) * std::sin(theta[(i + 2) % 3])) -
-             1.0;
+      const double sin_h_minus = sin_h * cos_theta[i] - cos_h * sin_theta[i];  // sin(h - θ_i)
+      c[i] = 2.0 * sin_h * sin_h_minus / (sin_theta[(i + 1) % 3] * sin_theta[(i + 2) % 3]) - 1.0;
       s[i] = sign * std::sqrt(std::max(0.0, 1.0 - c[i] * c[i]));
       if (std::abs(s[i]) <= 1e-10) coplanar = true;
     }
     if (coplanar) continue;  // x in the triangle's plane, outside it: no contribution
     for (int i = 0; i < 3; ++i) {
       const int a = (i + 1) % 3, b = (i + 2) % 3;
-      w[id[i]] += (theta[i] - c[a] * theta[b] - c[b] * theta[a]) /
-                  (d[id[i]] * std::sin(theta[a]) * s[b]);
+      w[id[i]] += (theta[i] - c[a] * theta[b] - c[b] * theta[a]) / (d[id[i]] * sin_theta[a] * s[b]);
     }
   }
   const double sum = w.sum();
