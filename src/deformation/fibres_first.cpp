@@ -393,6 +393,247 @@ int detect_muscle_pairs(const FibresFirstModel& model, const Points3& x,
 
 }  // namespace
 
+namespace {
+
+// Sets each muscle's contact weights wanted this round and brings its factor up to date: rank-one
+// updates/downdates when only contact weights changed, a new factorisation otherwise (and after
+// 4n modifications, to bound round-off). Throws fascicle::Error (numerical) when one fails.
+void update_factors(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, int frame,
+                    FibresFirstInfo& info) {
+  const FibresFirstModel& model = ctx.model;
+  const int nm = static_cast<int>(model.muscles.size());
+  // contact weights wanted per free particle; refactorise the muscles whose weights changed
+  for (int mi = 0; mi < nm; ++mi) {
+    const FibreBundle& m = model.muscles[mi];
+    MuscleSystem& sys = *ws.systems[mi];
+    std::fill(sys.weight.begin(), sys.weight.end(), 0.0);
+    for (std::size_t j = 0; j < m.free.size(); ++j)
+      if (ws.contact_bone[m.free[j]] >= 0) sys.weight[j] = ctx.contact_weight;
+  }
+  for (const MusclePair& pr : ws.pairs)
+    for (int p : {pr.p, pr.q}) {
+      const FibreBundle& m = model.muscles[model.muscle_of[p]];
+      const int j = m.free_index[p - m.first_particle];
+      if (j >= 0) ws.systems[model.muscle_of[p]]->weight[j] = ctx.contact_weight;
+    }
+  std::vector<int> refactor;
+  for (int mi = 0; mi < nm; ++mi) {
+    const MuscleSystem& sys = *ws.systems[mi];
+    const double mass_term = model.muscles[mi].particle_mass_kg * ctx.mass_scale;
+    if (!sys.valid || sys.weight != sys.factored_weight || mass_term != sys.factored_mass_term)
+      refactor.push_back(mi);
+  }
+  std::vector<char> failed(nm, 0);
+  std::vector<char> refactorised(nm, 0);
+  parallel_for(refactor.size(), [&](std::size_t r) {
+    const int mi = refactor[r];
+    MuscleSystem& sys = *ws.systems[mi];
+    const double mass_term = model.muscles[mi].particle_mass_kg * ctx.mass_scale;
+    // contact weights changed only: update/downdate the factor (refactorise now and then to
+    // bound round-off); otherwise factorise anew
+    if (sys.valid && mass_term == sys.factored_mass_term && sys.modifications < 4 * static_cast<int>(sys.diag.size())) {
+      std::vector<std::pair<int, double>> up, down;
+      for (std::size_t j = 0; j < sys.diag.size(); ++j) {
+        const double delta = sys.weight[j] - sys.factored_weight[j];
+        if (delta > 0.0) up.emplace_back(static_cast<int>(j), delta);
+        if (delta < 0.0) down.emplace_back(static_cast<int>(j), delta);
+      }
+      if (sys.factor.modify_diagonal(true, up) && sys.factor.modify_diagonal(false, down)) {
+        sys.modifications += static_cast<int>(up.size() + down.size());
+        sys.factored_weight = sys.weight;
+        return;
+      }
+    }
+    const double* base = sys.K_springs.valuePtr();
+    for (std::size_t j = 0; j < sys.diag.size(); ++j)
+      sys.K.valuePtr()[sys.diag[j]] = base[sys.diag[j]] + mass_term + sys.weight[j];
+    sys.valid = sys.factor.factorise(sys.K);
+    failed[mi] = !sys.valid;
+    refactorised[mi] = 1;
+    sys.modifications = 0;
+    sys.factored_weight = sys.weight;
+    sys.factored_mass_term = mass_term;
+  });
+  for (int mi = 0; mi < nm; ++mi) info.factorisations += refactorised[mi];
+  info.factor_updates += static_cast<int>(refactor.size()) - static_cast<int>(
+      std::count(refactorised.begin(), refactorised.end(), 1));
+  for (int mi = 0; mi < nm; ++mi)
+    if (failed[mi])
+      throw_numerical(fmt::format("frame {}: factorisation of the spring system of muscle '{}' "
+                                  "failed", frame, model.muscles[mi].name),
+                      frame_context(model.muscles[mi].name));
+}
+
+// Muscle-muscle targets of this iteration (Jacobi): each pair pushed apart symmetrically to its
+// allowed distance (all of the way by the free one when the other is fixed); per particle, the
+// mean over its pairs.
+void set_pair_targets(const FibresFirstModel& model, FibresFirstSolver::Workspace& ws,
+                      const Points3& snapshot) {
+  ws.pair_target.setZero();
+  std::fill(ws.pair_count.begin(), ws.pair_count.end(), 0);
+  for (const MusclePair& pr : ws.pairs) {
+    const Vec3 d = snapshot.row(pr.p) - snapshot.row(pr.q);
+    const double dist = d.norm();
+    Vec3 tp = snapshot.row(pr.p), tq = snapshot.row(pr.q);
+    if (dist < pr.allowed_m) {
+      const Vec3 rest_d = model.rest.row(pr.p) - model.rest.row(pr.q);
+      const Vec3 n = dist > 1e-12 ? Vec3(d / dist) : Vec3(rest_d.normalized());
+      const bool p_fixed = model.role[pr.p] == ParticleRole::fixed;
+      const bool q_fixed = model.role[pr.q] == ParticleRole::fixed;
+      const double share_p = p_fixed ? 0.0 : (q_fixed ? 1.0 : 0.5);
+      tp += share_p * (pr.allowed_m - dist) * n;
+      tq -= (1.0 - share_p) * (pr.allowed_m - dist) * n;
+    }
+    ws.pair_target.row(pr.p) += tp.transpose();
+    ws.pair_target.row(pr.q) += tq.transpose();
+    ++ws.pair_count[pr.p];
+    ++ws.pair_count[pr.q];
+  }
+}
+
+// One local/global iteration of muscle mi from `snapshot` (all particles), written into its rows
+// of x: spring and contact targets (local), the prefactorised solve (global), then the volume
+// step along Y = -K^-1 dV/dx (Y refreshed on the first iteration of a round). Returns the largest
+// particle displacement over the mean rest spring length.
+double relax_muscle(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, int mi,
+                    bool first_iteration, const Points3& snapshot, Points3& x, char& volume_failed) {
+  const FibresFirstModel& model = ctx.model;
+  const FibresFirstOptions& o = model.options;
+  const int P = o.particles_per_fibre;
+  const std::vector<Transform>& motions = ctx.motions;
+  const FibreBundle& m = model.muscles[mi];
+  MuscleSystem& sys = *ws.systems[mi];
+  const int nf = static_cast<int>(m.free.size());
+  const int base = m.first_particle;
+  const bool volume = o.hold_volume && m.surface_triangles.rows() > 0;
+  const bool fresh = volume && (first_iteration || sys.volume_direction.rows() != m.num_particles);
+  Eigen::MatrixXd B = Eigen::MatrixXd::Zero(nf, fresh ? 6 : 3);
+  // local step: every spring's rest-length vector along its current direction
+  for (int s = model.first_spring[mi]; s < model.first_spring[mi + 1]; ++s) {
+    const Spring& sp = model.springs[s];
+    const Vec3 xa = snapshot.row(sp.a), xb = snapshot.row(sp.b);
+    Vec3 d = xa - xb;
+    const double len = d.norm();
+    d = len > 1e-15 ? Vec3(d * (sp.rest_length_m / len))
+                    : Vec3((model.rest.row(sp.a) - model.rest.row(sp.b)).transpose());
+    const int a = m.free_index[sp.a - base], b = m.free_index[sp.b - base];
+    const double k = sp.stiffness;
+    if (a >= 0) B.row(a).head<3>() += (k * (b >= 0 ? d : Vec3(d + xb))).transpose();
+    if (b >= 0) B.row(b).head<3>() += (k * (a >= 0 ? Vec3(-d) : Vec3(xa - d))).transpose();
+  }
+  const double mass_term = m.particle_mass_kg * ctx.mass_scale;
+  for (int j = 0; j < nf; ++j) {
+    const int p = m.free[j];
+    if (ctx.inertial) B.row(j).head<3>() += mass_term * ctx.inertial->row(p);
+    if (sys.factored_weight[j] == 0.0) continue;
+    const int bone = ws.contact_bone[p];
+    const Vec3 target = bone >= 0 ? Vec3(motions[bone] * ws.contact_target_rest[p])
+                                  : Vec3(ws.pair_target.row(p).transpose() / ws.pair_count[p]);
+    B.row(j).head<3>() += sys.factored_weight[j] * target.transpose();
+  }
+  // volume gradient at the current iterate (first iteration of a round only)
+  if (fresh) {
+    const Points3 g = calc_particle_volume_gradient(m, snapshot, P);
+    for (int j = 0; j < nf; ++j) B.row(j).tail<3>() = g.row(m.free[j] - base);
+  }
+  // global step, then the volume: x = x_u + t Y with Y = -K^-1 g, t the root of V(t) = V0
+  Eigen::MatrixXd Z = std::move(B);
+  sys.factor.solve(Z);
+  Points3 xm = snapshot.middleRows(base, m.num_particles);
+  for (int j = 0; j < nf; ++j) xm.row(m.free[j] - base) = Z.row(j).head<3>();
+  if (fresh) {
+    sys.volume_direction = Points3::Zero(m.num_particles, 3);
+    for (int j = 0; j < nf; ++j) sys.volume_direction.row(m.free[j] - base) = -Z.row(j).tail<3>();
+  }
+  if (volume) volume_failed = !std::isfinite(hold_volume_along(m, P, xm, sys.volume_direction));
+  double largest = 0.0;
+  for (int j = 0; j < nf; ++j) {
+    const int p = m.free[j];
+    largest = std::max(largest, (xm.row(p - base) - snapshot.row(p)).norm());
+  }
+  x.middleRows(base, m.num_particles) = xm;
+  return largest / std::max(m.mean_spring_length_m, 1e-12);
+}
+
+// The final projection of a frame (see the comment inside).
+void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Points3& x,
+                   FibresFirstInfo& info) {
+  const FibresFirstModel& model = ctx.model;
+  const FibresFirstOptions& o = model.options;
+  const int P = o.particles_per_fibre;
+  const int N = model.num_particles();
+  const int nm = static_cast<int>(model.muscles.size());
+  const std::vector<Transform>& motions = ctx.motions;
+  // final projection (seed 002's rule, applied to the constraints the iterations left unmet):
+  // particles below their bone contact's target plane onto it, pairs of muscles still too close
+  // pushed apart, each muscle's volume restored along its correction direction with those
+  // particles held; then once more the pairs and bones (the volume step moves the other particles)
+  std::vector<char> held(N, 0);
+  auto project_onto_bones = [&] {
+    for (int p = 0; p < N; ++p) {
+      const int b = ws.contact_bone[p];
+      if (b < 0) continue;
+      const Vec3 target = motions[b] * ws.contact_target_rest[p];
+      const Vec3 n = motions[b].linear() * ws.contact_normal_rest[p];
+      const double below = (target - Vec3(x.row(p).transpose())).dot(n);
+      if (below > 0.0) {
+        x.row(p) += below * n.transpose();
+        held[p] = 1;
+      }
+    }
+  };
+  auto push_pairs_apart = [&] {
+    for (int pass = 0; pass < 3; ++pass) {  // Gauss-Seidel passes over the pairs
+      detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
+      bool moved = false;
+      for (const MusclePair& pr : ws.pairs) {
+        const Vec3 d = x.row(pr.p) - x.row(pr.q);
+        const double dist = d.norm();
+        if (dist >= pr.allowed_m) continue;
+        const Vec3 n = dist > 1e-12 ? Vec3(d / dist)
+                                    : Vec3((model.rest.row(pr.p) - model.rest.row(pr.q)).normalized());
+        const bool p_fixed = model.role[pr.p] == ParticleRole::fixed || held[pr.p] == 1;
+        const bool q_fixed = model.role[pr.q] == ParticleRole::fixed || held[pr.q] == 1;
+        if (p_fixed && q_fixed) continue;
+        const double share_p = p_fixed ? 0.0 : (q_fixed ? 1.0 : 0.5);
+        x.row(pr.p) += (share_p * (pr.allowed_m - dist) * n).transpose();
+        x.row(pr.q) -= ((1.0 - share_p) * (pr.allowed_m - dist) * n).transpose();
+        moved = true;
+      }
+      if (!moved) break;
+    }
+    for (const MusclePair& pr : ws.pairs) {  // held by the volume step (2: movable by pairs)
+      held[pr.p] = std::max<char>(held[pr.p], 2);
+      held[pr.q] = std::max<char>(held[pr.q], 2);
+    }
+  };
+  detect_bone_contacts(ctx, x, ws.contact_bone, ws.contact_target_rest, ws.contact_normal_rest,
+                       ws.checked_at, ws.clearance, true, nullptr);
+  project_onto_bones();
+  push_pairs_apart();
+  if (o.hold_volume)
+    for (int mi = 0; mi < nm; ++mi) {
+      const FibreBundle& m = model.muscles[mi];
+      const MuscleSystem& sys = *ws.systems[mi];
+      if (m.surface_triangles.rows() == 0 || sys.volume_direction.rows() != m.num_particles) continue;
+      Points3 Y = sys.volume_direction;
+      for (int q = 0; q < m.num_particles; ++q)
+        if (held[m.first_particle + q]) Y.row(q).setZero();
+      Points3 xm = x.middleRows(m.first_particle, m.num_particles);
+      for (int k = 0; k < std::max(1, o.max_volume_iterations); ++k) {
+        const double V = surface_volume(m, gather_surface(m, x, P));
+        if (std::abs(V - m.rest_volume_m3) <= 1e-12 * m.rest_volume_m3) break;
+        ++info.volume_iterations;
+        if (!std::isfinite(hold_volume_along(m, P, xm, Y))) break;
+        x.middleRows(m.first_particle, m.num_particles) = xm;
+      }
+    }
+  push_pairs_apart();
+  project_onto_bones();
+}
+
+}  // namespace
+
 void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
   Workspace& ws = *ws_;
   const FibresFirstModel& model = model_;
@@ -462,145 +703,15 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
   Points3 snapshot;
   for (int round = 0; round < o.max_contact_rounds; ++round) {
     ++info_.contact_rounds;
-    // contact weights wanted per free particle; refactorise the muscles whose weights changed
-    for (int mi = 0; mi < nm; ++mi) {
-      const FibreBundle& m = model.muscles[mi];
-      MuscleSystem& sys = *ws.systems[mi];
-      std::fill(sys.weight.begin(), sys.weight.end(), 0.0);
-      for (std::size_t j = 0; j < m.free.size(); ++j)
-        if (ws.contact_bone[m.free[j]] >= 0) sys.weight[j] = ctx.contact_weight;
-    }
-    for (const MusclePair& pr : ws.pairs)
-      for (int p : {pr.p, pr.q}) {
-        const FibreBundle& m = model.muscles[model.muscle_of[p]];
-        const int j = m.free_index[p - m.first_particle];
-        if (j >= 0) ws.systems[model.muscle_of[p]]->weight[j] = ctx.contact_weight;
-      }
-    std::vector<int> refactor;
-    for (int mi = 0; mi < nm; ++mi) {
-      const MuscleSystem& sys = *ws.systems[mi];
-      const double mass_term = model.muscles[mi].particle_mass_kg * ctx.mass_scale;
-      if (!sys.valid || sys.weight != sys.factored_weight || mass_term != sys.factored_mass_term)
-        refactor.push_back(mi);
-    }
-    std::vector<char> failed(nm, 0);
-    std::vector<char> refactorised(nm, 0);
-    parallel_for(refactor.size(), [&](std::size_t r) {
-      const int mi = refactor[r];
-      MuscleSystem& sys = *ws.systems[mi];
-      const double mass_term = model.muscles[mi].particle_mass_kg * ctx.mass_scale;
-      // contact weights changed only: update/downdate the factor (refactorise now and then to
-      // bound round-off); otherwise factorise anew
-      if (sys.valid && mass_term == sys.factored_mass_term && sys.modifications < 4 * static_cast<int>(sys.diag.size())) {
-        std::vector<std::pair<int, double>> up, down;
-        for (std::size_t j = 0; j < sys.diag.size(); ++j) {
-          const double delta = sys.weight[j] - sys.factored_weight[j];
-          if (delta > 0.0) up.emplace_back(static_cast<int>(j), delta);
-          if (delta < 0.0) down.emplace_back(static_cast<int>(j), delta);
-        }
-        if (sys.factor.modify_diagonal(true, up) && sys.factor.modify_diagonal(false, down)) {
-          sys.modifications += static_cast<int>(up.size() + down.size());
-          sys.factored_weight = sys.weight;
-          return;
-        }
-      }
-      const double* base = sys.K_springs.valuePtr();
-      for (std::size_t j = 0; j < sys.diag.size(); ++j)
-        sys.K.valuePtr()[sys.diag[j]] = base[sys.diag[j]] + mass_term + sys.weight[j];
-      sys.valid = sys.factor.factorise(sys.K);
-      failed[mi] = !sys.valid;
-      refactorised[mi] = 1;
-      sys.modifications = 0;
-      sys.factored_weight = sys.weight;
-      sys.factored_mass_term = mass_term;
-    });
-    for (int mi = 0; mi < nm; ++mi) info_.factorisations += refactorised[mi];
-    info_.factor_updates += static_cast<int>(refactor.size()) - static_cast<int>(
-        std::count(refactorised.begin(), refactorised.end(), 1));
-    for (int mi = 0; mi < nm; ++mi)
-      if (failed[mi])
-        throw_numerical(fmt::format("frame {}: factorisation of the spring system of muscle '{}' "
-                                    "failed", frame, model.muscles[mi].name),
-                        frame_context(model.muscles[mi].name));
+    update_factors(ctx, ws, frame, info_);
 
     // local/global iterations
     for (int it = 0; it < o.max_iterations; ++it) {
       ++info_.iterations;
       snapshot = x;
-      // muscle-muscle targets: each pair pushed apart symmetrically to its allowed distance
-      ws.pair_target.setZero();
-      std::fill(ws.pair_count.begin(), ws.pair_count.end(), 0);
-      for (const MusclePair& pr : ws.pairs) {
-        const Vec3 d = snapshot.row(pr.p) - snapshot.row(pr.q);
-        const double dist = d.norm();
-        Vec3 tp = snapshot.row(pr.p), tq = snapshot.row(pr.q);
-        if (dist < pr.allowed_m) {
-          const Vec3 rest_d = model.rest.row(pr.p) - model.rest.row(pr.q);
-          const Vec3 n = dist > 1e-12 ? Vec3(d / dist) : Vec3(rest_d.normalized());
-          const bool p_fixed = model.role[pr.p] == ParticleRole::fixed;
-          const bool q_fixed = model.role[pr.q] == ParticleRole::fixed;
-          const double share_p = p_fixed ? 0.0 : (q_fixed ? 1.0 : 0.5);
-          tp += share_p * (pr.allowed_m - dist) * n;
-          tq -= (1.0 - share_p) * (pr.allowed_m - dist) * n;
-        }
-        ws.pair_target.row(pr.p) += tp.transpose();
-        ws.pair_target.row(pr.q) += tq.transpose();
-        ++ws.pair_count[pr.p];
-        ++ws.pair_count[pr.q];
-      }
+      set_pair_targets(model, ws, snapshot);
       parallel_for(static_cast<std::size_t>(nm), [&](std::size_t mi) {
-        const FibreBundle& m = model.muscles[mi];
-        MuscleSystem& sys = *ws.systems[mi];
-        const int nf = static_cast<int>(m.free.size());
-        const int base = m.first_particle;
-        const bool volume = o.hold_volume && m.surface_triangles.rows() > 0;
-        const bool fresh = volume && (it == 0 || sys.volume_direction.rows() != m.num_particles);
-        Eigen::MatrixXd B = Eigen::MatrixXd::Zero(nf, fresh ? 6 : 3);
-        // local step: every spring's rest-length vector along its current direction
-        for (int s = model.first_spring[mi]; s < model.first_spring[mi + 1]; ++s) {
-          const Spring& sp = model.springs[s];
-          const Vec3 xa = snapshot.row(sp.a), xb = snapshot.row(sp.b);
-          Vec3 d = xa - xb;
-          const double len = d.norm();
-          d = len > 1e-15 ? Vec3(d * (sp.rest_length_m / len))
-                          : Vec3((model.rest.row(sp.a) - model.rest.row(sp.b)).transpose());
-          const int a = m.free_index[sp.a - base], b = m.free_index[sp.b - base];
-          const double k = sp.stiffness;
-          if (a >= 0) B.row(a).head<3>() += (k * (b >= 0 ? d : Vec3(d + xb))).transpose();
-          if (b >= 0) B.row(b).head<3>() += (k * (a >= 0 ? Vec3(-d) : Vec3(xa - d))).transpose();
-        }
-        const double mass_term = m.particle_mass_kg * ctx.mass_scale;
-        for (int j = 0; j < nf; ++j) {
-          const int p = m.free[j];
-          if (ctx.inertial) B.row(j).head<3>() += mass_term * ctx.inertial->row(p);
-          if (sys.factored_weight[j] == 0.0) continue;
-          const int bone = ws.contact_bone[p];
-          const Vec3 target = bone >= 0 ? Vec3(motions[bone] * ws.contact_target_rest[p])
-                                        : Vec3(ws.pair_target.row(p).transpose() / ws.pair_count[p]);
-          B.row(j).head<3>() += sys.factored_weight[j] * target.transpose();
-        }
-        // volume gradient at the current iterate (first iteration of a round only)
-        if (fresh) {
-          const Points3 g = calc_particle_volume_gradient(m, snapshot, P);
-          for (int j = 0; j < nf; ++j) B.row(j).tail<3>() = g.row(m.free[j] - base);
-        }
-        // global step, then the volume: x = x_u + t Y with Y = -K^-1 g, t the root of V(t) = V0
-        Eigen::MatrixXd Z = std::move(B);
-        sys.factor.solve(Z);
-        Points3 xm = snapshot.middleRows(base, m.num_particles);
-        for (int j = 0; j < nf; ++j) xm.row(m.free[j] - base) = Z.row(j).head<3>();
-        if (fresh) {
-          sys.volume_direction = Points3::Zero(m.num_particles, 3);
-          for (int j = 0; j < nf; ++j) sys.volume_direction.row(m.free[j] - base) = -Z.row(j).tail<3>();
-        }
-        if (volume) volume_failed[mi] = !std::isfinite(hold_volume_along(m, P, xm, sys.volume_direction));
-        double largest = 0.0;
-        for (int j = 0; j < nf; ++j) {
-          const int p = m.free[j];
-          largest = std::max(largest, (xm.row(p - base) - snapshot.row(p)).norm());
-        }
-        steps[mi] = largest / std::max(m.mean_spring_length_m, 1e-12);
-        x.middleRows(base, m.num_particles) = xm;
+        steps[mi] = relax_muscle(ctx, ws, static_cast<int>(mi), it == 0, snapshot, x, volume_failed[mi]);
       });
       info_.residual = *std::max_element(steps.begin(), steps.end());
       if (!x.allFinite() || !std::isfinite(info_.residual)) {
@@ -627,72 +738,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
     if (added == 0) break;
   }
 
-  // final projection (seed 002's rule, applied to the constraints the iterations left unmet):
-  // particles below their bone contact's target plane onto it, pairs of muscles still too close
-  // pushed apart, each muscle's volume restored along its correction direction with those
-  // particles held; then once more the pairs and bones (the volume step moves the other particles)
-  std::vector<char> held(N, 0);
-  auto project_onto_bones = [&] {
-    for (int p = 0; p < N; ++p) {
-      const int b = ws.contact_bone[p];
-      if (b < 0) continue;
-      const Vec3 target = motions[b] * ws.contact_target_rest[p];
-      const Vec3 n = motions[b].linear() * ws.contact_normal_rest[p];
-      const double below = (target - Vec3(x.row(p).transpose())).dot(n);
-      if (below > 0.0) {
-        x.row(p) += below * n.transpose();
-        held[p] = 1;
-      }
-    }
-  };
-  auto push_pairs_apart = [&] {
-    for (int pass = 0; pass < 3; ++pass) {  // Gauss-Seidel passes over the pairs
-      detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
-      bool moved = false;
-      for (const MusclePair& pr : ws.pairs) {
-        const Vec3 d = x.row(pr.p) - x.row(pr.q);
-        const double dist = d.norm();
-        if (dist >= pr.allowed_m) continue;
-        const Vec3 n = dist > 1e-12 ? Vec3(d / dist)
-                                    : Vec3((model.rest.row(pr.p) - model.rest.row(pr.q)).normalized());
-        const bool p_fixed = model.role[pr.p] == ParticleRole::fixed || held[pr.p] == 1;
-        const bool q_fixed = model.role[pr.q] == ParticleRole::fixed || held[pr.q] == 1;
-        if (p_fixed && q_fixed) continue;
-        const double share_p = p_fixed ? 0.0 : (q_fixed ? 1.0 : 0.5);
-        x.row(pr.p) += (share_p * (pr.allowed_m - dist) * n).transpose();
-        x.row(pr.q) -= ((1.0 - share_p) * (pr.allowed_m - dist) * n).transpose();
-        moved = true;
-      }
-      if (!moved) break;
-    }
-    for (const MusclePair& pr : ws.pairs) {  // held by the volume step (2: movable by pairs)
-      held[pr.p] = std::max<char>(held[pr.p], 2);
-      held[pr.q] = std::max<char>(held[pr.q], 2);
-    }
-  };
-  detect_bone_contacts(ctx, x, ws.contact_bone, ws.contact_target_rest, ws.contact_normal_rest,
-                       ws.checked_at, ws.clearance, true, nullptr);
-  project_onto_bones();
-  push_pairs_apart();
-  if (o.hold_volume)
-    for (int mi = 0; mi < nm; ++mi) {
-      const FibreBundle& m = model.muscles[mi];
-      const MuscleSystem& sys = *ws.systems[mi];
-      if (m.surface_triangles.rows() == 0 || sys.volume_direction.rows() != m.num_particles) continue;
-      Points3 Y = sys.volume_direction;
-      for (int q = 0; q < m.num_particles; ++q)
-        if (held[m.first_particle + q]) Y.row(q).setZero();
-      Points3 xm = x.middleRows(m.first_particle, m.num_particles);
-      for (int k = 0; k < std::max(1, o.max_volume_iterations); ++k) {
-        const double V = surface_volume(m, gather_surface(m, x, P));
-        if (std::abs(V - m.rest_volume_m3) <= 1e-12 * m.rest_volume_m3) break;
-        ++info_.volume_iterations;
-        if (!std::isfinite(hold_volume_along(m, P, xm, Y))) break;
-        x.middleRows(m.first_particle, m.num_particles) = xm;
-      }
-    }
-  push_pairs_apart();
-  project_onto_bones();
+  project_final(ctx, ws, x, info_);
 
   // results and checks
   std::vector<FibreBundleFrame> frames(nm);
