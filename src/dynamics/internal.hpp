@@ -29,6 +29,16 @@ void calc_forces_into(const SolidDynamicsModel& model, const Points3& P, const P
 // volume_hessian_scale: adds that multiple of the Hessian of V (by the model's quadrature) to the
 // stiffness only (the Lagrange multiplier or penalty pressure times ∂²V).
 
+// Contacts of the boundary samples with planes and bone meshes at P: for each active contact the
+// sample, the unit push direction n (world) and the depth (> 0).
+struct ActiveContact {
+  int sample = 0;
+  Vec3 normal = Vec3::Zero();
+  double depth = 0.0;
+};
+std::vector<ActiveContact> find_active_contacts(const SolidDynamicsModel& m, const Points3& P,
+                                                const std::vector<Transform>& X_now_rest);
+
 // Volume and gradient (3#P interleaved).
 double calc_volume_and_flat_gradient(const SolidDynamicsModel& m, const Points3& P, VecX* grad);
 

@@ -2,6 +2,7 @@
 // substance and fibres by quadrature, springs, gravity, volume penalty, plane contact.
 #include "fascicle/bspline/volume.hpp"
 #include "fascicle/core/error.hpp"
+#include "fascicle/geometry/mesh_query.hpp"
 #include "fascicle/musculotendon/curves.hpp"
 #include "internal.hpp"
 
@@ -253,33 +254,63 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
     out.force -= (s.volume_stiffness_Pa * e / m.rest_volume_m3) * out.volume_gradient;
   }
 
-  // Point-on-plane contact (one-sided, push only) at the boundary samples.
-  for (const auto& plane : s.contact_planes) {
+  // Point-on-plane contact (one-sided, push only) at the boundary samples: planes, and bone
+  // meshes through the tangent plane at the closest point.
+  const double k = m.contact_stiffness_N_m;
+  for (const ActiveContact& c : find_active_contacts(m, P, X)) {
+    const auto& cs = m.contact_samples[c.sample];
+    out.energy_J += 0.5 * k * c.depth * c.depth;
+    for (std::size_t a = 0; a < cs.index.size(); ++a)
+      out.force.segment<3>(3 * cs.index[a]) += k * c.depth * cs.N[a] * c.normal;
+    if (!K) continue;
+    const Mat3 nn = k * c.normal * c.normal.transpose();
+    for (std::size_t a = 0; a < cs.index.size(); ++a)
+      for (std::size_t b = 0; b < cs.index.size(); ++b) {
+        const int I = cs.index[a], Jn = cs.index[b];
+        if (I < Jn) continue;
+        const int blk = find_block(m, I, Jn);
+        for (int cc = 0; cc < 3; ++cc)
+          for (int r = 0; r < 3; ++r)
+            K[find_value_position(m, Jn, blk, r, cc)] += cs.N[a] * cs.N[b] * nn(r, cc);
+      }
+  }
+}
+
+std::vector<ActiveContact> find_active_contacts(const SolidDynamicsModel& m, const Points3& P,
+                                                const std::vector<Transform>& X) {
+  std::vector<ActiveContact> out;
+  if (m.contact_samples.empty()) return out;
+  std::vector<Vec3> x(m.contact_samples.size(), Vec3::Zero());
+  for (std::size_t s = 0; s < x.size(); ++s) {
+    const auto& cs = m.contact_samples[s];
+    for (std::size_t a = 0; a < cs.index.size(); ++a) x[s] += cs.N[a] * P.row(cs.index[a]).transpose();
+  }
+  for (const auto& plane : m.spec.contact_planes) {
     const Transform X_b = get_body_pose(X, plane.body);
     const Vec3 p0 = X_b * plane.point_rest;
     const Vec3 nrm = (X_b.linear() * plane.normal_rest).normalized();
-    const double k = m.contact_stiffness_N_m;
-    for (const auto& cs : m.contact_samples) {
-      Vec3 x = Vec3::Zero();
-      for (std::size_t a = 0; a < cs.index.size(); ++a) x += cs.N[a] * P.row(cs.index[a]).transpose();
-      const double gap = nrm.dot(x - p0);
-      if (gap >= 0.0) continue;
-      out.energy_J += 0.5 * k * gap * gap;
-      for (std::size_t a = 0; a < cs.index.size(); ++a)
-        out.force.segment<3>(3 * cs.index[a]) -= k * gap * cs.N[a] * nrm;
-      if (!K) continue;
-      const Mat3 nn = k * nrm * nrm.transpose();
-      for (std::size_t a = 0; a < cs.index.size(); ++a)
-        for (std::size_t b = 0; b < cs.index.size(); ++b) {
-          const int I = cs.index[a], Jn = cs.index[b];
-          if (I < Jn) continue;
-          const int blk = find_block(m, I, Jn);
-          for (int c = 0; c < 3; ++c)
-            for (int r = 0; r < 3; ++r)
-              K[find_value_position(m, Jn, blk, r, c)] += cs.N[a] * cs.N[b] * nn(r, c);
-        }
+    for (std::size_t s = 0; s < x.size(); ++s) {
+      const double gap = nrm.dot(x[s] - p0);
+      if (gap < 0.0) out.push_back({static_cast<int>(s), nrm, -gap});
     }
   }
+  for (std::size_t b = 0; b < m.bone_queries.size(); ++b) {
+    const MeshQuery& q = *m.bone_queries[b];
+    const Transform X_b = get_body_pose(X, m.spec.contact_bones[b].body);
+    const Transform X_rest_now = X_b.inverse();
+    const Vec3 lo = q.get_mesh().V.colwise().minCoeff(), hi = q.get_mesh().V.colwise().maxCoeff();
+    for (std::size_t s = 0; s < x.size(); ++s) {
+      const Vec3 p = X_rest_now * x[s];  // in the bone's rest frame
+      if ((p.array() < lo.array()).any() || (p.array() > hi.array()).any()) continue;
+      if (!q.calc_is_inside(p)) continue;
+      const ClosestPoint c = q.calc_closest_point(p);
+      const Vec3 d = c.point - p;
+      const double depth = d.norm();
+      if (!(depth > 0.0)) continue;
+      out.push_back({static_cast<int>(s), X_b.linear() * (d / depth), depth});
+    }
+  }
+  return out;
 }
 
 }  // namespace dynamics_detail

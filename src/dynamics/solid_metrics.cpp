@@ -16,18 +16,10 @@ struct ContactSummary {
 ContactSummary calc_contact_summary(const SolidDynamicsModel& m, const Points3& P,
                                     const std::vector<Transform>& X) {
   ContactSummary out;
-  for (const auto& plane : m.spec.contact_planes) {
-    const Transform X_b = dynamics_detail::get_body_pose(X, plane.body);
-    const Vec3 p0 = X_b * plane.point_rest;
-    const Vec3 nrm = (X_b.linear() * plane.normal_rest).normalized();
-    for (const auto& cs : m.contact_samples) {
-      Vec3 x = Vec3::Zero();
-      for (std::size_t a = 0; a < cs.index.size(); ++a) x += cs.N[a] * P.row(cs.index[a]).transpose();
-      const double gap = nrm.dot(x - p0);
-      if (gap >= 0.0) continue;
-      out.energy_J += 0.5 * m.contact_stiffness_N_m * gap * gap;
-      out.reaction_N += m.contact_stiffness_N_m * gap * nrm;  // plane pushes +n, solid pushes −n
-    }
+  const double k = m.contact_stiffness_N_m;
+  for (const auto& c : dynamics_detail::find_active_contacts(m, P, X)) {
+    out.energy_J += 0.5 * k * c.depth * c.depth;
+    out.reaction_N -= k * c.depth * c.normal;  // the bone pushes +n, the solid pushes −n
   }
   return out;
 }

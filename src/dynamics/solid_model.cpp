@@ -4,6 +4,7 @@
 #include "fascicle/bspline/volume.hpp"
 #include "fascicle/core/error.hpp"
 #include "fascicle/dynamics/solid_dynamics.hpp"
+#include "fascicle/geometry/mesh_query.hpp"
 
 #include <fmt/format.h>
 
@@ -235,7 +236,14 @@ SolidDynamicsModel compile_solid_dynamics(const BSplineSolid& rest, const SolidD
   for (const auto& s : m.springs) cols[std::min(s.a, s.b)].push_back(std::max(s.a, s.b));
 
   // Contact samples on the boundary (their supports lie within one span: already in the pattern).
-  if (!spec.contact_planes.empty()) {
+  for (const auto& b : spec.contact_bones) {
+    try {
+      m.bone_queries.push_back(std::make_shared<const MeshQuery>(b.mesh_rest));
+    } catch (const Error& e) {
+      throw e.with_object("contact bone '" + b.name + "'");
+    }
+  }
+  if (!spec.contact_planes.empty() || !spec.contact_bones.empty()) {
     const BoundaryTessellation t =
         make_boundary_tessellation(rest, std::max(1, spec.contact_samples_per_span));
     for (Eigen::Index v = 0; v < t.material.rows(); ++v) {

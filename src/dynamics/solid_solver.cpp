@@ -120,8 +120,15 @@ SolidDynamicsSolver::SolidDynamicsSolver(std::shared_ptr<const SolidDynamicsMode
     w.D = w.A;
     VecX vals = m.spec.rayleigh_alpha_1_s * w.inertia_values;
     if (m.spec.rayleigh_beta_s > 0.0) {
+      // K(rest) of the material alone: contacts (which may be active in the rest pose of the
+      // bones) must not become damping.
+      SolidDynamicsModel material = m;
+      material.contact_samples.clear();
+      material.bone_queries.clear();
+      material.spec.contact_planes.clear();
+      material.spec.contact_bones.clear();
       ForceEvaluation k0;
-      calc_forces_into(m, m.rest.P, {}, 0.0, true, {}, k0);
+      calc_forces_into(material, m.rest.P, {}, 0.0, true, {}, k0);
       vals += m.spec.rayleigh_beta_s * Eigen::Map<const VecX>(k0.stiffness.valuePtr(), vals.size());
     }
     Eigen::Map<VecX>(w.D.valuePtr(), vals.size()) = vals;

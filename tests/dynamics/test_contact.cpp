@@ -1,6 +1,7 @@
 // Contact tests: sliding on a bone plane, muscles pushing apart.
 #include "fascicle/bspline/lattice.hpp"
 #include "fascicle/dynamics/contact.hpp"
+#include "fascicle/geometry/primitives.hpp"
 
 #include <gtest/gtest.h>
 
@@ -54,6 +55,44 @@ TEST(SolidContact, PressedOnBonePlaneSlidesWithoutCrossing) {
   EXPECT_NEAR(mm.contact_reaction_N.z(), -m->mass_kg * 9.81, 0.15 * m->mass_kg * 9.81);
   EXPECT_NEAR(mm.contact_reaction_N.x(), 0.0, 1e-9);
   EXPECT_NEAR(mm.volume_error, 0.0, 1e-6);
+}
+
+// The same on a bone mesh (a slab posed by its body transform): the contact is the tangent plane at
+// the closest surface point.
+TEST(SolidContact, SlidesOnBoneMeshWithoutCrossing) {
+  const BSplineSolid box = make_small_box(Vec3(0, 0, 0.0005), Vec3(0.02, 0.02, 0.0405));
+  SolidDynamicsSpec spec;
+  spec.gravity_m_s2 = Vec3(2.0, 0.0, -9.81);
+  spec.ground.c1_Pa = 5e3;
+  spec.rayleigh_beta_s = 0.005;
+  BoneContactSpec bone;
+  bone.name = "slab";
+  bone.body = 0;
+  bone.mesh_rest = make_box(Vec3(0.06, 0.06, 0.01));  // centred at the origin in its rest frame
+  spec.contact_bones.push_back(bone);
+  auto m = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(box, spec));
+  SolidDynamicsSolver solver(m);
+  StepInputs in;
+  Transform X = Transform::Identity();
+  X.translate(Vec3(0.01, 0.01, -0.01));  // slab top at z = 0
+  in.X_now_rest = {X};
+  double worst = 0.0;
+  for (int k = 0; k < 100; ++k) {
+    solver.step(0.002, in);
+    const Points3& P = solver.get_state().P;
+    for (const auto& cs : m->contact_samples) {
+      double z = 0.0;
+      for (std::size_t a = 0; a < cs.index.size(); ++a) z += cs.N[a] * P(cs.index[a], 2);
+      worst = std::min(worst, z);
+    }
+  }
+  const SolidMetrics mm = solver.calc_metrics(in);
+  const double t = solver.get_state().time_s;
+  const Vec3 com0 = (m->lumped_mass.transpose() * box.P).transpose() / m->mass_kg;
+  EXPECT_NEAR(mm.centre_of_mass_m.x() - com0.x(), 0.5 * 2.0 * t * t, 0.03 * 0.5 * 2.0 * t * t);
+  EXPECT_GT(worst, -2e-4) << "penetration into the bone (m)";
+  EXPECT_NEAR(mm.contact_reaction_N.z(), -m->mass_kg * 9.81, 0.15 * m->mass_kg * 9.81)
+      << "worst " << worst << " min z now " << solver.get_state().P.col(2).minCoeff();
 }
 
 TEST(SolidContact, TwoSolidsPushedTogetherSeparateAndDoNotPull) {

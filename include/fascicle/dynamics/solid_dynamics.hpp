@@ -16,6 +16,7 @@
 #include "fascicle/bspline/solid.hpp"
 #include "fascicle/core/types.hpp"
 #include "fascicle/dynamics/materials.hpp"
+#include "fascicle/geometry/tri_mesh.hpp"
 #include "fascicle/musculotendon/activation.hpp"
 
 #include <Eigen/SparseCore>
@@ -28,6 +29,7 @@
 namespace fascicle {
 
 class BoundaryVolumeIntegrator;
+class MeshQuery;
 
 enum class MassLumping { lumped, consistent };
 enum class VolumeMethod {
@@ -52,6 +54,15 @@ struct ContactPlaneSpec {
   Vec3 point_rest = Vec3::Zero();  // a point of the plane (rest frame, m)
   Vec3 normal_rest = Vec3::UnitZ();  // outward (into the free side)
   double stiffness_N_m = 0.0;      // per contact sample; 0: automatic (see docs)
+};
+
+// A bone mesh (closed, rest frame of its body, m). Boundary samples of the solid found inside it
+// are pushed out along the direction to the closest surface point: the locally planar contact of
+// seed 000 §4.7 (point on the tangent plane, free to slide), with the plane stiffness.
+struct BoneContactSpec {
+  std::string name;
+  int body = -1;  // moves with X_now_rest[body]; −1: fixed
+  TriMesh mesh_rest;
 };
 
 struct SolidDynamicsSpec {
@@ -93,6 +104,7 @@ struct SolidDynamicsSpec {
   int quadrature_points_per_span = 0;  // 0: degree + 1 per direction
   std::vector<AttachmentSpec> attachments;
   std::vector<ContactPlaneSpec> contact_planes;
+  std::vector<BoneContactSpec> contact_bones;
   int contact_samples_per_span = 2;  // boundary sample density for plane contact
 };
 
@@ -134,6 +146,7 @@ struct SolidDynamicsModel {
   };
   std::vector<ContactSample> contact_samples;
   double contact_stiffness_N_m = 0.0;  // per sample, resolved from the spec
+  std::vector<std::shared_ptr<const MeshQuery>> bone_queries;  // per contact bone (rest frame)
   // Lower-triangle block pairs (I >= J) of each quadrature point: local support indices and the
   // block's position in block_row; pairs of quadrature point q start at pair_first[q].
   struct BlockPair {
