@@ -26,14 +26,19 @@ CoordinateTrajectory make_trajectory(const Model& model, const Table& motion, do
     ++matched;
     const Coordinate& coord = model.coordinates[ci.v];
     const double scale = (t.in_degrees && coord.rotational) ? M_PI / 180.0 : 1.0;
-    bool clamped = false;
+    bool outside = false;
     for (long r = 0; r < t.rows(); ++r) {
       const double v = scale * t.data(r, c);
       const double cv = std::clamp(v, coord.range_min, coord.range_max);
-      clamped |= cv != v;
-      traj.q(r, ci.v) = cv;
+      outside |= cv != v;
+      traj.q(r, ci.v) = coord.clamped ? cv : v;
     }
-    if (clamped) spdlog::warn("motion takes coordinate '{}' outside its range; values clamped", coord.name);
+    if (outside && coord.clamped)
+      spdlog::warn("motion takes coordinate '{}' outside its range [{}, {}]; values clamped", coord.name,
+                   coord.range_min, coord.range_max);
+    else if (outside)
+      spdlog::warn("motion takes coordinate '{}' outside its range [{}, {}]; kept (the coordinate is not clamped)",
+                   coord.name, coord.range_min, coord.range_max);
   }
   if (matched == 0 && model.num_coordinates() > 0)
     throw_bad_input("no motion column matches a coordinate of the scene",

@@ -7,6 +7,7 @@
 #include "fascicle/scene/names.hpp"
 
 #include <cmath>
+#include <limits>
 
 namespace fascicle {
 namespace {
@@ -163,6 +164,24 @@ SkeletonSpec make_skeleton_spec(const Model& model, const std::vector<JointSpec>
   return s;
 }
 
+// An attachment area (radius > 0) on a body with an obstacle mesh must lie on that bone: some
+// landmark within max(radius, 1 cm) of its surface at the default pose.
+void check_attachment_on_bone(const Model& model, const Attachment& a, const std::string& muscle, const char* which) {
+  const Body& body = model.bodies[a.body.v];
+  if (!(a.radius_m > 0.0) || !body.rest_query) return;
+  const Transform& X = model.X_ground_body_default[a.body.v];
+  double nearest = std::numeric_limits<double>::infinity();
+  for (Eigen::Index k = 0; k < a.p_body.rows(); ++k)
+    nearest = std::min(nearest, body.rest_query->calc_closest_point(X * Vec3(a.p_body.row(k).transpose())).distance);
+  const double allowed = std::max(a.radius_m, 0.01);
+  if (nearest > allowed)
+    throw_bad_input(std::string(which) + " attachment area lies on no bone: its landmarks are " +
+                        std::to_string(std::lround(nearest * 1e3)) + " mm from body '" + body.name + "'",
+                    {.object = muscle, .suggestion = "put the landmarks on the bone's surface (within " +
+                                                     std::to_string(std::lround(allowed * 1e3)) +
+                                                     " mm), or attach the muscle to the body it touches"});
+}
+
 const char* get_joint_type_name(JointType type) {
   switch (type) {
     case JointType::weld: return "weld";
@@ -177,7 +196,7 @@ const char* get_joint_type_name(JointType type) {
 }
 
 // The coordinates of the compiled skeleton, in its order, and the default pose.
-void add_coordinates(Model& model) {
+void add_coordinates(Model& model, bool clamp_all) {
   for (int c = 0; c < model.skeleton->num_coordinates(); ++c) {
     const CoordinateInfo& info = model.skeleton->get_coordinate(c);
     Coordinate coord;
@@ -186,6 +205,7 @@ void add_coordinates(Model& model) {
     coord.default_value = info.spec.default_value;
     coord.range_min = info.spec.range_min;
     coord.range_max = info.spec.range_max;
+    coord.clamped = clamp_all || info.spec.clamped;
     const std::string& joint_name = model.skeleton->get_joints().at(info.joint).name;
     coord.joint = JointIndex{find_by_name(model.joints, joint_name)};
     if (!(coord.range_min <= coord.range_max) || coord.default_value < coord.range_min ||
@@ -234,7 +254,7 @@ void compile_scene_skeleton(const SceneSpec& spec, const Registry& registry, Mod
       throw_bad_input("body has no joint connecting it to the skeleton", {.object = model.bodies[b].name,
                       .suggestion = "add a joint with this body as child ('weld' to fix it)"});
   model.skeleton = std::make_unique<const Skeleton>(fascicle::compile(make_skeleton_spec(model, skeleton_joints)));
-  add_coordinates(model);
+  add_coordinates(model, true);
 
   // Body meshes given in ground at the default pose: move them into their body frames.
   if (in_ground) {
@@ -294,7 +314,7 @@ void compile_given_skeleton(const SceneSpec& spec, Model& model) {
     model.bodies[j.child.v].joint = JointIndex{static_cast<int32_t>(model.joints.size())};
     model.joints.push_back(std::move(j));
   }
-  add_coordinates(model);
+  add_coordinates(model, false);
 }
 
 }  // namespace
@@ -341,6 +361,8 @@ Model compile(const SceneSpec& spec, const Registry& registry) {
     m.origin = compile_attachment(ms.origin, model.bodies, model.X_ground_body_default, in_ground, ms.name, "origin");
     m.insertion = compile_attachment(ms.insertion, model.bodies, model.X_ground_body_default, in_ground, ms.name,
                                      "insertion");
+    check_attachment_on_bone(model, m.origin, ms.name, "origin");
+    check_attachment_on_bone(model, m.insertion, ms.name, "insertion");
     if (ms.path >= 0 && ms.path >= static_cast<int>(model.paths.paths.size()))
       throw_bad_input("muscle refers to a path the scene does not have", {.object = ms.name});
     m.path = ms.path;

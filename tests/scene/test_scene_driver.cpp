@@ -127,6 +127,21 @@ TEST(SceneModel, StructuralErrorsNameTheObject) {
   s = make_two_link_scene();
   s.bodies[0].mesh->F.col(0).swap(s.bodies[0].mesh->F.col(1));  // inside-out mesh
   EXPECT_THROW(compile(s, registry), Error);
+  // An attachment area must lie on its bone: the upper box's surface is at x = 0.02; a landmark
+  // at x = 0.03 (10 mm away) with a 10 mm area is on it, one at x = 0.05 (30 mm) is not.
+  s = make_two_link_scene();
+  s.muscles[0].origin.radius_m = 0.01;
+  EXPECT_NO_THROW(compile(s, registry));
+  s.muscles[0].origin.points = {Vec3(0.05, 0.1, 0.0)};
+  try {
+    compile(s, registry);
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+    EXPECT_EQ(e.context().object, "flexor");
+    EXPECT_NE(std::string(e.what()).find("lies on no bone: its landmarks are 30 mm from body 'upper'"),
+              std::string::npos) << e.what();
+  }
 }
 
 namespace {

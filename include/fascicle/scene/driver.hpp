@@ -26,8 +26,9 @@ struct CoordinateTrajectory {
 // Resamples `motion` at `frame_rate_hz` and maps its columns to the Model's coordinates (labels
 // equal to coordinate names, or OpenSim paths ending in /<coordinate>/value). Rotational columns
 // are converted from degrees when the table says `inDegrees=yes`. Coordinates without a column
-// keep their default. Values outside a coordinate's range are clamped, with a warning naming the
-// coordinate. Throws bad_input when no column matches any coordinate.
+// keep their default. Values outside a coordinate's range are clamped when the coordinate says so
+// (Coordinate::clamped), else kept; either way with a warning naming the coordinate. Throws
+// bad_input when no column matches any coordinate.
 CoordinateTrajectory make_trajectory(const Model& model, const Table& motion, double frame_rate_hz);
 
 // Activations over time (e.g. an OpenSim states or controls .sto), interpolated linearly at the

@@ -51,6 +51,9 @@ struct Coordinate {
   double default_value = 0.0;
   double range_min = -1e9;
   double range_max = 1e9;
+  // Motion values outside the range are clamped (with a warning); false: kept, with a warning
+  // (an OpenSim coordinate whose `clamped` is false). Scene coordinates are always clamped.
+  bool clamped = true;
 };
 
 struct Attachment {
