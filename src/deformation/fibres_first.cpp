@@ -357,7 +357,7 @@ int detect_muscle_pairs(const FibresFirstModel& model, const Points3& x,
   if (model.muscles.size() < 2 || margin <= 0.0) return 0;
   std::vector<int> ids;
   for (const FibreBundle& m : model.muscles)
-    ids.insert(ids.end(), m.surface_particles.begin(), m.surface_particles.end());
+    ids.insert(ids.end(), m.contact_particles.begin(), m.contact_particles.end());
   Points3 S(ids.size(), 3);
   for (std::size_t j = 0; j < ids.size(); ++j) S.row(j) = x.row(ids[j]);
   const PointCloud cloud{S};

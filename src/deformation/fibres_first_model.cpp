@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cmath>
 #include <fmt/format.h>
+#include <limits>
 #include <numeric>
 #include <set>
 #include <utility>
@@ -123,7 +124,7 @@ void check_options(const FibresFirstOptions& o) {
   if (!positive(o.density_kg_per_m3) || !positive(o.contact_weight) || !positive(o.step_tolerance) ||
       !positive(o.volume_tolerance) || !positive(o.max_volume_error) ||
       !positive(o.default_time_step_s) || !(o.damping_per_s >= 0.0) || !(o.bone_margin_m >= 0.0) ||
-      !(o.muscle_margin_m >= 0.0) || !(o.end_attachment_distance_m >= 0.0) ||
+      !(o.muscle_margin_m >= 0.0) || !(o.muscle_contact_band >= 0.0) || !(o.end_attachment_distance_m >= 0.0) ||
       !(o.bone_attachment_distance_m >= 0.0) || !(std::abs(o.blend_a) <= 1.0))
     throw_bad_input("invalid fibres-first options (density, weights, tolerances and time step must be "
                 "> 0; damping, margins and distances >= 0; |blend_a| <= 1)");
@@ -351,6 +352,30 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
       std::vector<Vec2> section(m.num_fibres);
       for (int f = 0; f < m.num_fibres; ++f) section[f] = Vec2(mid.row(f).dot(u), mid.row(f).dot(v));
       m.boundary_fibres = calc_convex_hull(section);
+      // contact fibres: the hull's, and those within muscle_contact_band x the mean nearest-fibre
+      // spacing of its edges
+      std::vector<char> near(m.num_fibres, 0);
+      for (int f : m.boundary_fibres) near[f] = 1;
+      const int nb = static_cast<int>(m.boundary_fibres.size());
+      if (nb >= 3 && options.muscle_contact_band > 0.0) {
+        double spacing = 0.0;
+        for (int f = 0; f < m.num_fibres; ++f) {
+          double nearest = std::numeric_limits<double>::infinity();
+          for (int g = 0; g < m.num_fibres; ++g)
+            if (g != f) nearest = std::min(nearest, (section[f] - section[g]).norm());
+          spacing += nearest / m.num_fibres;
+        }
+        for (int f = 0; f < m.num_fibres; ++f)
+          for (int k = 0; k < nb && !near[f]; ++k) {
+            const Vec2 a = section[m.boundary_fibres[k]], b = section[m.boundary_fibres[(k + 1) % nb]];
+            const double t = std::clamp((section[f] - a).dot(b - a) / std::max((b - a).squaredNorm(), 1e-300), 0.0, 1.0);
+            if ((section[f] - (a + t * (b - a))).norm() <= options.muscle_contact_band * spacing)
+              near[f] = 1;
+          }
+      }
+      for (int f = 0; f < m.num_fibres; ++f)
+        if (near[f])
+          for (int i = 0; i < P; ++i) m.contact_particles.push_back(id(f, i));
     }
     build_surface(m, model.rest, P, options.hold_volume);
   }

@@ -123,9 +123,13 @@ TEST(FibresFirst, StretchedFibreSettlesToTheAnalyticEquilibrium) {
     for (int i = 0; i < P; ++i) {
       EXPECT_NEAR(x(i, 2), z[i], 1e-9) << "particle " << i << " bending " << kb;
       EXPECT_NEAR(x(i, 0), 0.0, 1e-12);
-      if (kb == 0.0) EXPECT_NEAR(x(i, 2), (L + d) * i / (P - 1), 1e-9);
+      if (kb == 0.0) {
+        EXPECT_NEAR(x(i, 2), (L + d) * i / (P - 1), 1e-9);
+      }
     }
-    if (kb > 0.0) EXPECT_GT(std::abs(x(1, 2) - (L + d) / (P - 1)), 1e-5);  // really non-uniform
+    if (kb > 0.0) {
+      EXPECT_GT(std::abs(x(1, 2) - (L + d) / (P - 1)), 1e-5);  // really non-uniform
+    }
     EXPECT_LT(solver.get_info().residual, 1e-10);
   }
 }

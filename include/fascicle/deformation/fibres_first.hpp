@@ -64,6 +64,10 @@ struct FibresFirstOptions {
   // min(muscle_margin_m, their rest distance) apart.
   double bone_margin_m = 2e-4;
   double muscle_margin_m = 2e-3;
+  // Fibres taking part in muscle-muscle separation: the cross-section's convex hull (0), or also
+  // those within this many mean fibre spacings of the hull's edges (1: about one more layer;
+  // on the VH shank 5x the pairs and about 1.5x the time per frame).
+  double muscle_contact_band = 0.0;
   double contact_weight = 100.0;  // contact spring = this x along_stiffness
   int max_contact_rounds = 4;     // solve -> detect new contacts -> solve rounds per frame
   // Local/global iterations (projective dynamics) per contact round; stop when the largest
@@ -93,6 +97,9 @@ struct FibreBundle {
   // Display surface: vertices = boundary-fibre particles (in surface_particles order) followed by
   // the two cap centres (means of the first and last ring); triangles fixed, outward.
   std::vector<int> surface_particles;  // model particle indices
+  // Particles kept apart from other muscles: those of the boundary fibres and of the fibres
+  // within options.muscle_contact_band x the mean nearest-fibre spacing of the hull's edges
+  std::vector<int> contact_particles;
   Triangles surface_triangles;
   double rest_volume_m3 = 0.0;    // enclosed by the rest display surface
   double particle_mass_kg = 0.0;
