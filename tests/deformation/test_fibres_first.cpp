@@ -75,6 +75,20 @@ TEST(FibresFirst, BundleAtRestStaysAtRest) {
   EXPECT_NEAR(model.muscles[0].rest_volume_m3, 0.012 * 0.008 * 0.08, 1e-12);
 }
 
+// Contact fibres of a 5 x 5 grid: the 16 on the hull, plus the next ring of 8 (one spacing from
+// the hull's edges) with muscle_contact_band = 1.
+TEST(FibresFirst, ContactFibresAreTheHullAndTheBandAroundIt) {
+  const EndBones bones(0.08);
+  const FibreBundleSpec spec{"grid", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), 0.08, 5, 5, 0.004), 0, 1};
+  for (double band : {0.0, 1.0}) {
+    FibresFirstOptions o;
+    o.muscle_contact_band = band;
+    const FibresFirstModel model = build_fibres_first_model({spec}, bones.list(), o);
+    EXPECT_EQ(model.muscles[0].boundary_fibres.size(), 16u);
+    EXPECT_EQ(model.muscles[0].contact_particles.size(), (band > 0.0 ? 24u : 16u) * 15u) << band;
+  }
+}
+
 TEST(FibresFirst, RigidMotionOfAllBonesMovesTheBundleRigidly) {
   const EndBones bones(0.08);
   const FibreBundleSpec spec{"rigid", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), 0.08, 3, 3, 0.004), 0, 1};
