@@ -151,8 +151,7 @@ void SolidDynamicsSolver::set_state(SolidState s) {
   ws_->factor_age = -1;
 }
 
-void SolidDynamicsSolver::project_volume(SolidState& s, const SolidState& before, double dt,
-                                         StepReport& r) const {
+void SolidDynamicsSolver::project_volume(SolidState& s, double dt, StepReport& r) const {
   const SolidDynamicsModel& m = *model_;
   if (m.spec.volume != VolumeMethod::exact) return;
   VecX x = flatten_points(s.P);
@@ -172,7 +171,6 @@ void SolidDynamicsSolver::project_volume(SolidState& s, const SolidState& before
   // The projection is part of the step: velocities follow the corrected positions.
   if (dt > 0.0 && options_.integrator != Integrator::quasi_static)
     s.V += unflatten_points((x - x0) / dt);
-  (void)before;
 }
 
 StepReport SolidDynamicsSolver::step(double dt, const StepInputs& in) {
@@ -305,7 +303,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
       x += hs * v;
       s.P = unflatten_points(x);
       s.V = unflatten_points(v);
-      project_volume(s, s, hs, rep);
+      project_volume(s, hs, rep);
       x = flatten_points(s.P);
       v = flatten_points(s.V);
     }
@@ -505,7 +503,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
                                 options_.max_newton_iterations, rep.residual));
   s.P = unflatten_points(x);
   s.V = quasi ? Points3::Zero(n, 3) : unflatten_points((x - x_n) / h);
-  project_volume(s, s, h, rep);
+  project_volume(s, h, rep);
   w.last_lambda = lambda;
   if (w.factor_age >= 0) ++w.factor_age;
   s.activation = a;

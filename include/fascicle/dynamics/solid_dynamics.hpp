@@ -280,7 +280,7 @@ class SolidDynamicsSolver {
  private:
   struct Workspace;
   StepReport try_step(double dt, const StepInputs& inputs, SolidState& s);
-  void project_volume(SolidState& s, const SolidState& before, double dt, StepReport& r) const;
+  void project_volume(SolidState& s, double dt, StepReport& r) const;
   std::shared_ptr<const SolidDynamicsModel> model_;
   SolverOptions options_;
   SolidState state_;
