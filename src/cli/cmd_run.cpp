@@ -59,7 +59,7 @@ void run(const RunArgs& args) {
     spec = make_scene_from_osim(read_osim(args.model, import), options);
   }
   if (!args.representation.empty()) {
-    registry.muscle_representations.get(args.representation, {.suggestion = "see docs/scene-format.md"});
+    registry.check_representation(args.representation, {.suggestion = "see docs/scene-format.md"});
     for (auto& m : spec.muscles) m.representation = args.representation;
   }
   if (args.activation >= 0.0)

@@ -357,7 +357,7 @@ Model compile(const SceneSpec& spec, const Registry& registry) {
     Muscle m;
     m.name = ms.name;
     m.representation_name = ms.representation;
-    registry.muscle_representations.get(ms.representation, {.object = ms.name});
+    registry.check_representation(ms.representation, {.object = ms.name});
     m.origin = compile_attachment(ms.origin, model.bodies, model.X_ground_body_default, in_ground, ms.name, "origin");
     m.insertion = compile_attachment(ms.insertion, model.bodies, model.X_ground_body_default, in_ground, ms.name,
                                      "insertion");
@@ -402,6 +402,7 @@ Model compile(const SceneSpec& spec, const Registry& registry) {
   // and bone-depth queries per muscle), independently: in parallel over muscles.
   std::vector<std::unique_ptr<const MuscleRepresentation>> reps(spec.muscles.size());
   parallel_for(spec.muscles.size(), [&](size_t i) {
+    if (!registry.muscle_representations.find(spec.muscles[i].representation)) return;  // a group's
     const auto& factory = registry.muscle_representations.get(spec.muscles[i].representation);
     try {
       reps[i] = factory(model, MuscleIndex{static_cast<int32_t>(i)});
@@ -410,6 +411,22 @@ Model compile(const SceneSpec& spec, const Registry& registry) {
     }
   });
   for (size_t i = 0; i < reps.size(); ++i) model.muscles[i].representation = std::move(reps[i]);
+  // Group representations: one per name, with all its muscles, in scene order.
+  for (const std::string& name : registry.muscle_groups.get_names()) {
+    MuscleGroup g;
+    g.representation = name;
+    for (size_t i = 0; i < spec.muscles.size(); ++i)
+      if (spec.muscles[i].representation == name) g.muscles.push_back(MuscleIndex{static_cast<int32_t>(i)});
+    if (g.muscles.empty()) continue;
+    g.group = registry.muscle_groups.get(name)(model, g.muscles);
+    for (size_t k = 0; k < g.muscles.size(); ++k)
+      if (const TriMesh* surface = g.group->get_rest_surface(static_cast<int>(k))) {
+        Muscle& m = model.muscles[g.muscles[k].v];
+        m.rest_mesh = *surface;
+        m.rest_volume_m3 = calc_mass_properties(m.rest_mesh).volume_m3;
+      }
+    model.muscle_groups.push_back(std::move(g));
+  }
   return model;
 }
 

@@ -5,6 +5,7 @@
 #include "fascicle/scene/builtins.hpp"
 #include "fascicle/scene/names.hpp"
 
+#include <algorithm>
 #include <Eigen/Geometry>
 
 namespace fascicle {
@@ -110,6 +111,9 @@ void register_builtins(Registry& r) {
   r.joint_types.add("slider", make_slider_joint);
   r.joint_types.add("free", make_free_joint);
   r.muscle_representations.add("surface_first", make_surface_first);
+  r.muscle_representations.add("surface-first", make_surface_first);
+  r.muscle_groups.add("fibres_first", make_fibres_first);
+  r.muscle_groups.add("fibres-first", make_fibres_first);
   r.muscle_representations.add("blended_surface", make_blended_surface);
   r.muscle_representations.add("action_line", make_action_line_only);
   r.actuators.add("hill", make_hill_actuator);
@@ -119,6 +123,18 @@ void register_builtins(Registry& r) {
   r.writers.add("csv", make_csv_writer);
   r.writers.add("summary", make_summary_writer);
   r.writers.add("sketch", make_sketch_writer);
+}
+
+std::vector<std::string> Registry::get_representation_names() const {
+  std::vector<std::string> names = muscle_representations.get_names();
+  for (const auto& n : muscle_groups.get_names()) names.push_back(n);
+  std::sort(names.begin(), names.end());
+  return names;
+}
+
+void Registry::check_representation(const std::string& name, ErrorContext where) const {
+  if (muscle_representations.find(name) || muscle_groups.find(name)) return;
+  throw_unknown_name("muscle representation", name, get_representation_names(), std::move(where));
 }
 
 Registry make_default_registry() {

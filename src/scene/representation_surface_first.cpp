@@ -10,6 +10,7 @@
 #include "fascicle/scene/builtins.hpp"
 #include "fascicle/scene/model.hpp"
 #include "fascicle/scene/state.hpp"
+#include "muscle_setup.hpp"
 
 #include <spdlog/spdlog.h>
 
@@ -19,73 +20,7 @@
 namespace fascicle {
 namespace {
 
-double get_option(const Muscle& m, const std::string& key, double fallback) {
-  const auto it = m.options.find(key);
-  return it == m.options.end() ? fallback : it->second;
-}
-
-// Rigid motion of body b from the default pose: X_ground_b(now) · X_ground_b(default)⁻¹.
-Transform calc_body_motion(const Model& model, const State& state, BodyIndex b) {
-  return state.X_ground_body[b.v] * model.X_ground_body_default[b.v].inverse();
-}
-
-// Rest surface vertices within `radius` of the attachment's landmarks (ground, default pose).
-std::vector<int> find_area_vertices(const Model& model, const Muscle& m, const Attachment& a) {
-  std::vector<int> vertices;
-  if (!(a.radius_m > 0.0)) return vertices;
-  const Transform& X = model.X_ground_body_default[a.body.v];
-  const Points3 landmarks = ((a.p_body * X.linear().transpose()).rowwise() + X.translation().transpose()).eval();
-  const Points3& V = m.rest_mesh.V;
-  for (Eigen::Index i = 0; i < V.rows(); ++i)
-    for (Eigen::Index k = 0; k < landmarks.rows(); ++k)
-      if ((V.row(i) - landmarks.row(k)).squaredNorm() <= a.radius_m * a.radius_m) {
-        vertices.push_back(static_cast<int>(i));
-        break;
-      }
-  return vertices;
-}
-
-Points3 calc_rest_action_line(const Model& model, const Muscle& m) {
-  const auto& X = model.X_ground_body_default;
-  Points3 line(static_cast<Eigen::Index>(m.via_points.size() + 2), 3);
-  line.row(0) = (X[m.origin.body.v] * m.origin.p_body_centroid).transpose();
-  for (size_t v = 0; v < m.via_points.size(); ++v)
-    line.row(static_cast<Eigen::Index>(v + 1)) = (X[m.via_points[v].body.v] * m.via_points[v].p_body).transpose();
-  line.row(line.rows() - 1) = (X[m.insertion.body.v] * m.insertion.p_body_centroid).transpose();
-  return line;
-}
-
-double calc_polyline_length(const Points3& P) {
-  double length = 0.0;
-  for (Eigen::Index i = 1; i < P.rows(); ++i) length += (P.row(i) - P.row(i - 1)).norm();
-  return length;
-}
-
-// The rest fibres of a muscle without given ones: the fibres module's template decomposition of
-// the rest surface between the attachment areas (or, when an area has no triangle, the end
-// regions of the surface along the origin–insertion direction).
-std::vector<Points3> decompose_rest_fibres(const Muscle& m, const std::vector<int>& origin,
-                                           const std::vector<int>& insertion, const Vec3& towards_origin) {
-  Attachments areas;
-  bool use_landmarks = !origin.empty() && !insertion.empty();
-  if (use_landmarks) {
-    try {
-      areas.origin = make_attachment_area(m.rest_mesh, origin, "origin");
-      areas.insertion = make_attachment_area(m.rest_mesh, insertion, "insertion");
-      check_attachments(m.rest_mesh, areas);
-    } catch (const Error&) {
-      use_landmarks = false;
-    }
-  }
-  if (!use_landmarks) areas = find_end_attachments(m.rest_mesh, 0.08, towards_origin);
-  DecomposeOptions options;
-  options.fibre_template = m.fibre_template.empty() ? FibreTemplate::parallel : parse_fibre_template(m.fibre_template);
-  options.count = static_cast<int>(get_option(m, "fibre_count", 60));
-  options.resolution = static_cast<int>(get_option(m, "fibre_resolution", 15));
-  Decomposition d = decompose_muscle(m.rest_mesh, areas, options);
-  for (const std::string& w : d.warnings) spdlog::warn("muscle '{}': {}", m.name, w);
-  return std::move(d.fibres.fibres);
-}
+using namespace scene_detail;
 
 class SurfaceFirst final : public MuscleRepresentation {
  public:
@@ -137,11 +72,7 @@ class SurfaceFirst final : public MuscleRepresentation {
     bones_ = std::move(bones);
 
     // Fibres: given, or decomposed from the rest surface (unless "fibres": 0).
-    std::vector<Points3> fibres = m.rest_fibres;
-    if (fibres.empty() && get_option(m, "fibres", 1.0) != 0.0) {
-      const Vec3 towards_origin = (rest_line.row(0) - rest_line.row(rest_line.rows() - 1)).transpose().normalized();
-      fibres = decompose_rest_fibres(m, origin, insertion, towards_origin);
-    }
+    const std::vector<Points3> fibres = get_or_decompose_rest_fibres(model, m);
     if (!fibres.empty()) {
       FibreEmbeddingOptions embed_options;
       embed_options.max_weights = static_cast<int>(get_option(m, "fibre_weights", 64));
@@ -175,12 +106,7 @@ class SurfaceFirst final : public MuscleRepresentation {
     out.max_bone_penetration_m = info.max_penetration_beyond_rest_m;
     if (embedding_.fibre_start.size() > 1) {
       out.fibres = calc_embedded_fibres(embedding_, frame->solver);
-      const FibreMetrics metrics = calc_fibre_metrics(out.fibres, out.action_line);
-      out.fibre_length_m = metrics.length_m;
-      out.fibre_pennation_rad = metrics.pennation_rad;
-      out.fibre_strain = (metrics.length_m.array() / rest_fibre_length_.array() - 1.0).matrix();
-      out.mean_fibre_length_m = metrics.mean_length_m;
-      out.mean_pennation_rad = metrics.mean_pennation_rad;
+      set_fibre_metrics(rest_fibre_length_, out);
     } else {
       out.fibres.clear();
     }

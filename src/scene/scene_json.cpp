@@ -62,7 +62,7 @@ SchemaNode get_scene_schema(const Registry& registry) {
   });
   const SchemaNode muscle = object({
       required("name", string()),
-      optional("representation", one_of(registry.muscle_representations.get_names())),
+      optional("representation", one_of(registry.get_representation_names())),
       optional("mesh", string()),
       required("origin", attachment),
       required("insertion", attachment),
@@ -70,7 +70,7 @@ SchemaNode get_scene_schema(const Registry& registry) {
       optional("actuator", actuator),
       optional("activation", number(0.0, 1.0)),
       optional("fibre_template", one_of({"parallel", "pennate", "bipennate", "curved", "fanned"})),
-      optional("options", SchemaNode{.type = JsonType::object}),
+      optional("options", map(number())),
   });
   return object({
       required("fascicle_scene", integer(1, 1)),
@@ -85,7 +85,7 @@ SchemaNode get_scene_schema(const Registry& registry) {
           optional("geometry", array(string())),
           optional("specific_tension", number(1e-3)),
           optional("activation", number(0.0, 1.0)),
-          optional("representation", one_of(registry.muscle_representations.get_names())),
+          optional("representation", one_of(registry.get_representation_names())),
       })),
       optional("muscles", array(muscle)),
       optional("motion", object({required("file", string()), optional("frame_rate", number(1e-6))})),

@@ -96,7 +96,9 @@ struct Validator {
         fail(path, "expected at least " + std::to_string(*s.min_items) + " elements, got " + std::to_string(v.size()));
       for (size_t i = 0; i < v.size(); ++i) check(v[i], s.items.front(), path + "/" + std::to_string(i));
     }
-    if (s.type == JsonType::object) {
+    if (s.type == JsonType::object && !s.items.empty()) {  // a map: any key, typed values
+      for (const auto& [key, value] : v.items()) check(value, s.items.front(), path + "/" + escape_json_pointer(key));
+    } else if (s.type == JsonType::object) {
       std::vector<std::string> keys;
       for (const auto& f : s.fields) keys.push_back(f.key);
       for (const auto& [key, value] : v.items()) {
@@ -135,6 +137,13 @@ SchemaNode array(SchemaNode item, size_t min_items) {
   n.type = JsonType::array;
   n.items.push_back(std::move(item));
   if (min_items > 0) n.min_items = min_items;
+  return n;
+}
+
+SchemaNode map(SchemaNode value) {
+  SchemaNode n;
+  n.type = JsonType::object;
+  n.items.push_back(std::move(value));
   return n;
 }
 SchemaNode string() { return SchemaNode{.type = JsonType::string}; }

@@ -38,6 +38,7 @@ State make_state(const Model& model) {
   for (size_t m = 0; m < model.muscles.size(); ++m)
     if (model.muscles[m].representation)
       s.representation_states[m] = model.muscles[m].representation->make_state();
+  for (const MuscleGroup& g : model.muscle_groups) s.group_states.push_back(g.group->make_state());
   s.skeleton.emplace(*model.skeleton);
   return s;
 }
@@ -104,13 +105,21 @@ void calc_forces(const Model& model, State& state) {
 
 void calc_muscle_geometry(const Model& model, State& state) {
   require_stage(state, Stage::forces, "calc_muscle_geometry");
+  if (state.representation_states.size() != model.muscles.size() ||
+      state.group_states.size() != model.muscle_groups.size())
+    throw_internal("calc_muscle_geometry: the State was not made by make_state() for this Model");
   for_each_muscle(model, [&](int m) {
     MuscleFrame& out = state.muscles[m];
-    if (state.representation_states.size() != model.muscles.size())
-      throw_internal("calc_muscle_geometry: the State was not made by make_state() for this Model");
+    if (!model.muscles[m].representation) return;  // a group member
     model.muscles[m].representation->calc_geometry(model, MuscleIndex{m}, state,
                                                    state.representation_states[m].get(), out);
   });
+  for (size_t g = 0; g < model.muscle_groups.size(); ++g) {
+    const MuscleGroup& group = model.muscle_groups[g];
+    std::vector<MuscleFrame*> out;
+    for (MuscleIndex m : group.muscles) out.push_back(&state.muscles[m.v]);
+    group.group->calc_geometry(model, group.muscles, state, state.group_states[g].get(), out);
+  }
   calc_muscle_overlaps(model, state);
   state.stage = Stage::geometry;
 }

@@ -28,6 +28,15 @@ std::unique_ptr<const Actuator> make_hill_actuator(const MuscleSpec& spec);
 // max_volume_error, max_contact_rounds, bone_margin (m, default 0.02), fibres (0: none),
 // fibre_count (60), fibre_resolution (15), fibre_weights (64).
 std::unique_ptr<const MuscleRepresentation> make_surface_first(const Model& model, MuscleIndex m);
+// "fibres_first" (group): seed 002 §5's particle/spring fibre bundles (deformation/fibres_first.hpp)
+// for all the scene's muscles that name it, solved together so they stay apart; particles fixed
+// to the origin and insertion bodies, volume held, kept out of the bones. Its display surface
+// (from the boundary fibres) replaces the muscle's mesh as the rest mesh. Options (taken from the
+// group's first muscle): particles_per_fibre (15), along_stiffness (N/m), across_stiffness,
+// bending_stiffness, muscle_margin (m), bone_margin (m), dynamic (0/1), damping (1/s), iterations
+// (20; 3 for interactive rates), contact_rounds (4; 1), fibre_count.
+std::unique_ptr<const MuscleGroupRepresentation> make_fibres_first(const Model& model,
+                                                                   const std::vector<MuscleIndex>& muscles);
 // "blended_surface": the interim deformation (docs/scene-format.md). Each rest vertex is bound to
 // the nearest segment of the rest action line; its motion is the blend (1−w)·T_a + w·T_b of the
 // rigid motions of the bodies at the segment's ends with w = smoothstep(s) of its position s along

@@ -87,14 +87,22 @@ struct Muscle {
   std::unique_ptr<const MuscleRepresentation> representation;
 };
 
+// Muscles solved together by one group representation (registry.muscle_groups).
+struct MuscleGroup {
+  std::string representation;
+  std::vector<MuscleIndex> muscles;
+  std::unique_ptr<const MuscleGroupRepresentation> group;
+};
+
 struct Model {
   std::string name;
   std::unique_ptr<const Skeleton> skeleton;  // poses the bodies (skeleton module, Simbody)
   std::vector<Body> bodies;              // [0] = ground
   std::vector<Joint> joints;             // parents before children
   std::vector<Coordinate> coordinates;   // in the skeleton's coordinate order
-  std::vector<Muscle> muscles;
-  PathSetModel paths;                    // compiled SceneSpec::paths (empty without)
+  std::vector<Muscle> muscles;           // representation null for members of a group
+  std::vector<MuscleGroup> muscle_groups;
+  PathSetModel paths;                    // compiled SceneSpec::paths (empty without)                    // compiled SceneSpec::paths (empty without)
   VecX default_q;                        // #coordinates
   std::vector<Transform> X_ground_body_default;  // at default_q
 

@@ -8,6 +8,7 @@
 
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/types.hpp"
+#include "fascicle/geometry/tri_mesh.hpp"
 #include "fascicle/musculotendon/muscle.hpp"
 #include "fascicle/scene/ids.hpp"
 #include "fascicle/scene/scene_spec.hpp"
@@ -54,6 +55,23 @@ class MuscleRepresentation {
 };
 using MuscleRepresentationFactory = std::function<std::unique_ptr<const MuscleRepresentation>(
     const Model& model, MuscleIndex muscle)>;
+
+// A representation that solves several muscles together (e.g. fibres-first, whose muscles push
+// each other apart): compile() gives it every muscle of the scene that names it, once. Per frame
+// calc_geometry() fills those muscles' MuscleFrames (after the per-muscle representations).
+class MuscleGroupRepresentation {
+ public:
+  virtual ~MuscleGroupRepresentation() = default;
+  virtual std::unique_ptr<RepresentationState> make_state() const { return nullptr; }
+  // The surface the group draws for member k at rest, when it is not the muscle's own mesh (the
+  // Model then holds this one as the muscle's rest mesh, so frames' surfaces match its rows).
+  virtual const TriMesh* get_rest_surface(int member) const { return nullptr; }
+  // out[k] is the frame of member k (muscles[k]).
+  virtual void calc_geometry(const Model& model, const std::vector<MuscleIndex>& muscles, const State& state,
+                             RepresentationState* rs, const std::vector<MuscleFrame*>& out) const = 0;
+};
+using MuscleGroupFactory = std::function<std::unique_ptr<const MuscleGroupRepresentation>(
+    const Model& model, const std::vector<MuscleIndex>& muscles)>;
 
 // Force generation of a musculotendon unit from its path length (static equilibrium at zero
 // lengthening speed for the built-in "hill").
@@ -127,13 +145,20 @@ class FactoryTable {
 struct Registry {
   FactoryTable<JointFactory> joint_types{"joint type"};
   FactoryTable<MuscleRepresentationFactory> muscle_representations{"muscle representation"};
+  FactoryTable<MuscleGroupFactory> muscle_groups{"muscle group representation"};
   FactoryTable<ActuatorFactory> actuators{"actuator"};
   FactoryTable<WrapSurfaceFactory> wrap_surfaces{"wrap surface"};
   FactoryTable<WriterFactory> writers{"writer"};
+
+  // Names a muscle's "representation" may take: per-muscle and group representations.
+  std::vector<std::string> get_representation_names() const;
+  // Throws bad input naming the unknown representation and suggesting the nearest name.
+  void check_representation(const std::string& name, ErrorContext where = {}) const;
 };
 
 // Joint types "weld", "pin" (alias "hinge"), "slider", "free"; muscle representations
-// "surface_first", "blended_surface", "action_line"; actuators "hill", "none"; writers "paraview", "sto", "csv".
+// "surface_first" (alias "surface-first"), "blended_surface", "action_line"; the group
+// representation "fibres_first" (alias "fibres-first"); actuators "hill", "none"; writers "paraview", "sto", "csv".
 void register_builtins(Registry& registry);
 
 // A registry with the built-ins.

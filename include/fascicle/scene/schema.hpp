@@ -21,7 +21,8 @@ struct SchemaField;
 struct SchemaNode {
   JsonType type = JsonType::any;
   std::vector<SchemaField> fields;       // object: the allowed keys (others are errors)
-  std::vector<SchemaNode> items;         // array: one node, the type of every element
+  std::vector<SchemaNode> items;         // array: one node, the type of every element; object:
+                                         // when set, any key, each value of this type (a map)
   std::vector<std::string> enum_values;  // string: the allowed values (empty: any)
   std::string ref;                       // string: must name an item of this kind (NameTable)
   std::optional<double> min, max;        // number/integer: closed bounds
@@ -45,6 +46,7 @@ void validate_json(const nlohmann::json& value, const SchemaNode& schema, const 
 namespace schema {
 SchemaNode object(std::vector<SchemaField> fields);
 SchemaNode array(SchemaNode item, size_t min_items = 0);
+SchemaNode map(SchemaNode value);  // an object with any keys whose values all match `value`
 SchemaNode string();
 SchemaNode one_of(std::vector<std::string> values);
 SchemaNode reference(std::string kind);

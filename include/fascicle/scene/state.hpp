@@ -45,6 +45,7 @@ struct State {
   // Per muscle: its representation's frame-to-frame data (null when it keeps none); made by
   // make_state() from this Model, so a State is moved, not copied.
   std::vector<std::unique_ptr<RepresentationState>> representation_states;
+  std::vector<std::unique_ptr<RepresentationState>> group_states;  // per Model::muscle_groups
   Stage stage = Stage::none;
   std::optional<SkeletonState> skeleton;   // the skeleton module's per-frame state
 };

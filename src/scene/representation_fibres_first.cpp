@@ -1,0 +1,141 @@
+// "fibres_first": the muscles of a scene as particle/spring fibre bundles solved together
+// (Kohout et al., seed 002 §5; the solver is deformation/fibres_first.hpp, the method and the
+// comparison with surface-first docs/representations.md).
+#include "fascicle/core/error.hpp"
+#include "fascicle/deformation/fibres_first.hpp"
+#include "fascicle/scene/builtins.hpp"
+#include "fascicle/scene/model.hpp"
+#include "fascicle/scene/state.hpp"
+#include "muscle_setup.hpp"
+
+#include <cmath>
+
+namespace fascicle {
+namespace {
+
+using namespace scene_detail;
+
+class FibresFirst final : public MuscleGroupRepresentation {
+ public:
+  FibresFirst(const Model& model, const std::vector<MuscleIndex>& muscles) {
+    // Bones: every body with an obstacle mesh, in body order.
+    std::vector<int> bone_of_body(model.bodies.size(), -1);
+    std::vector<const MeshQuery*> bones;
+    for (int b = 1; b < model.num_bodies(); ++b)
+      if (model.bodies[b].rest_query) {
+        bone_of_body[b] = static_cast<int>(bones.size());
+        bones.push_back(model.bodies[b].rest_query.get());
+        bone_bodies_.push_back(BodyIndex{b});
+      }
+    const Muscle& first = model.get_muscle(muscles.front());
+    FibresFirstOptions o;
+    o.particles_per_fibre = static_cast<int>(get_option(first, "particles_per_fibre", o.particles_per_fibre));
+    o.along_stiffness = get_option(first, "along_stiffness", o.along_stiffness);
+    o.across_stiffness = get_option(first, "across_stiffness", o.across_stiffness);
+    o.bending_stiffness = get_option(first, "bending_stiffness", o.bending_stiffness);
+    o.muscle_margin_m = get_option(first, "muscle_margin", o.muscle_margin_m);
+    o.bone_margin_m = get_option(first, "bone_margin", o.bone_margin_m);
+    o.dynamic = get_option(first, "dynamic", 0.0) != 0.0;
+    o.damping_per_s = get_option(first, "damping", o.damping_per_s);
+    o.max_iterations = static_cast<int>(get_option(first, "iterations", o.max_iterations));
+    o.max_contact_rounds = static_cast<int>(get_option(first, "contact_rounds", o.max_contact_rounds));
+
+    std::vector<FibreBundleSpec> specs;
+    for (MuscleIndex mi : muscles) {
+      const Muscle& m = model.get_muscle(mi);
+      FibreBundleSpec s;
+      s.name = m.name;
+      s.fibres = get_or_decompose_rest_fibres(model, m);
+      if (s.fibres.empty())
+        throw_bad_input("representation 'fibres_first' needs fibres: rest fibres, or a mesh to decompose",
+                        {.object = m.name, .suggestion = "give the muscle a mesh (and a fibre_template)"});
+      // Fibres run from origin to insertion: reverse those whose first point is nearer the
+      // insertion (decompositions and generated pennate fibres may run either way).
+      const Points3 line = calc_rest_action_line(model, m);
+      const Vec3 o0 = line.row(0).transpose(), i0 = line.row(line.rows() - 1).transpose();
+      for (Points3& f : s.fibres) {
+        const Vec3 a = f.row(0).transpose(), b = f.row(f.rows() - 1).transpose();
+        if ((a - o0).norm() + (b - i0).norm() > (a - i0).norm() + (b - o0).norm()) f = f.colwise().reverse().eval();
+      }
+      s.origin_bone = bone_of_body[m.origin.body.v];
+      s.insertion_bone = bone_of_body[m.insertion.body.v];
+      if (s.origin_bone < 0 || s.insertion_bone < 0)
+        throw_bad_input("representation 'fibres_first' fixes fibre ends to the origin and insertion bodies, "
+                        "which need closed meshes",
+                        {.object = m.name, .suggestion = "give body '" +
+                                                         model.bodies[(s.origin_bone < 0 ? m.origin : m.insertion).body.v].name +
+                                                         "' a closed mesh, or use 'surface_first'"});
+      s.volume_m3 = m.rest_volume_m3;
+      specs.push_back(std::move(s));
+    }
+    model_ = build_fibres_first_model(specs, bones, o);
+    // The display surfaces at rest: the solver's own reconstruction with every bone at rest.
+    const std::vector<FibreBundleFrame> at_rest = calc_fibres_first_frame(model_, FibresFirstInput{});
+    rest_surfaces_.resize(muscles.size());
+    rest_fibre_length_.resize(muscles.size());
+    for (size_t k = 0; k < muscles.size(); ++k) {
+      const FibreBundle& bundle = model_.muscles[k];
+      rest_surfaces_[k].F = bundle.surface_triangles;
+      rest_surfaces_[k].V = at_rest[k].surface_vertices;
+      const std::vector<Points3> fibres = calc_rest_fibres(static_cast<int>(k));
+      rest_fibre_length_[k].resize(static_cast<Eigen::Index>(fibres.size()));
+      for (size_t f = 0; f < fibres.size(); ++f) rest_fibre_length_[k][f] = calc_polyline_length(fibres[f]);
+    }
+  }
+
+  struct Frame final : RepresentationState {
+    explicit Frame(const FibresFirstModel& model) : solver(model) {}
+    FibresFirstSolver solver;
+    double last_time_s = std::numeric_limits<double>::quiet_NaN();
+  };
+
+  std::unique_ptr<RepresentationState> make_state() const override { return std::make_unique<Frame>(model_); }
+
+  const TriMesh* get_rest_surface(int member) const override { return &rest_surfaces_.at(member); }
+
+  void calc_geometry(const Model& model, const std::vector<MuscleIndex>& muscles, const State& state,
+                     RepresentationState* rs, const std::vector<MuscleFrame*>& out) const override {
+    auto* frame = dynamic_cast<Frame*>(rs);
+    if (!frame) throw_internal("fibres_first: the State was not made for this Model (make_state)");
+    FibresFirstInput input;
+    for (BodyIndex b : bone_bodies_) input.bone_motions.push_back(calc_body_motion(model, state, b));
+    if (std::isfinite(frame->last_time_s) && state.time_s > frame->last_time_s)
+      input.time_step_s = state.time_s - frame->last_time_s;
+    frame->solver.calc_frame(input);
+    frame->last_time_s = state.time_s;
+    const auto& results = frame->solver.get_muscles();
+    for (size_t k = 0; k < muscles.size(); ++k) {
+      MuscleFrame& o = *out[k];
+      const FibreBundleFrame& r = results[k];
+      o.surface = r.surface_vertices;
+      o.volume_m3 = r.volume_m3;
+      o.relative_volume_change = r.volume_m3 / model_.muscles[k].rest_volume_m3 - 1.0;
+      o.max_bone_penetration_m = r.max_bone_penetration_m;
+      o.fibres = frame->solver.calc_fibres(static_cast<int>(k));
+      set_fibre_metrics(rest_fibre_length_[k], o);
+    }
+  }
+
+ private:
+  std::vector<Points3> calc_rest_fibres(int k) const {
+    const FibreBundle& bundle = model_.muscles[k];
+    const int P = model_.options.particles_per_fibre;
+    std::vector<Points3> fibres;
+    for (int f = 0; f < bundle.num_fibres; ++f) fibres.push_back(model_.rest.middleRows(bundle.first_particle + f * P, P));
+    return fibres;
+  }
+
+  FibresFirstModel model_;
+  std::vector<BodyIndex> bone_bodies_;  // per bone of the model
+  std::vector<TriMesh> rest_surfaces_;  // per member
+  std::vector<VecX> rest_fibre_length_; // per member, per fibre
+};
+
+}  // namespace
+
+std::unique_ptr<const MuscleGroupRepresentation> make_fibres_first(const Model& model,
+                                                                   const std::vector<MuscleIndex>& muscles) {
+  return std::make_unique<FibresFirst>(model, muscles);
+}
+
+}  // namespace fascicle
