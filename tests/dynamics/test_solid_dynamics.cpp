@@ -172,12 +172,6 @@ TEST(SolidIntegrators, FreeFall) {
 namespace fascicle {
 namespace {
 
-Points3 rotate_about_centre(const Points3& P, const Mat3& R, const Vec3& c) {
-  Points3 out = P;
-  for (Eigen::Index i = 0; i < P.rows(); ++i) out.row(i) = (R * (P.row(i).transpose() - c) + c).transpose();
-  return out;
-}
-
 // Spinning free solid: symplectic Euler keeps the energy to O(h) (bounded oscillation), backward
 // Euler dissipates O(h); halving h halves both errors.
 TEST(SolidIntegrators, RigidRotationEnergyWithinOrder) {
