@@ -45,6 +45,7 @@ int main(int argc, char** argv) {
   try {
     fascicle::init_logging(quiet_flag ? -1 : verbose);
     const fascicle::ThreadLimit limit(threads);
+    fascicle::use_single_threaded_blas();
     if (run.action) run.action();
     return static_cast<int>(ExitCode::ok);
   } catch (const fascicle::Error& e) {

@@ -1,5 +1,8 @@
 #include "fascicle/core/parallel.hpp"
 
+#include <dlfcn.h>
+
+#include <mutex>
 #include <tbb/global_control.h>
 #include <tbb/info.h>
 #include <tbb/parallel_for.h>
@@ -19,6 +22,14 @@ ThreadLimit::~ThreadLimit() = default;
 
 void parallel_for(std::size_t n, const std::function<void(std::size_t)>& body) {
   tbb::parallel_for(std::size_t{0}, n, [&](std::size_t i) { body(i); });
+}
+
+void use_single_threaded_blas() {
+  static std::once_flag once;  // a process-wide library setting, made once
+  std::call_once(once, [] {
+    using SetThreads = void (*)(int);
+    if (auto set = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"))) set(1);
+  });
 }
 
 int max_threads() {

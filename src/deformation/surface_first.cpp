@@ -3,6 +3,7 @@
 #include "fascicle/deformation/surface_first.hpp"
 
 #include "fascicle/core/error.hpp"
+#include "fascicle/core/parallel.hpp"
 
 #include <omp.h>
 
@@ -169,7 +170,10 @@ SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_act
 // parallelism is over muscles (TBB); nested OpenMP teams on top of it only wake sleeping threads
 // (measured: 25 % of a frame in futex wake-ups on two cores). Limit the calling thread's OpenMP
 // team to itself before each CHOLMOD call (the ICV is per thread, so this is cheap and local).
-void use_single_threaded_cholmod() { omp_set_num_threads(1); }
+void use_single_threaded_cholmod() {
+  omp_set_num_threads(1);
+  use_single_threaded_blas();
+}
 
 // One sparse Cholesky factorisation (CHOLMOD supernodal LL^T or Eigen's simplicial LDL^T).
 struct SparseCholesky {

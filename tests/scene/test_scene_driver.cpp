@@ -275,7 +275,8 @@ TEST(SceneDriver, SameResultsWithOneAndTwoThreads) {
   }
   ASSERT_EQ(runs[0].size(), runs[1].size());
   for (size_t i = 0; i < runs[0].size(); ++i) {
-    EXPECT_EQ(runs[0][i].surface, runs[1][i].surface);
+    EXPECT_EQ(runs[0][i].surface, runs[1][i].surface)
+        << "max difference " << (runs[0][i].surface - runs[1][i].surface).cwiseAbs().maxCoeff();
     EXPECT_EQ(runs[0][i].hill.tendon_force_N, runs[1][i].hill.tendon_force_N);
     EXPECT_EQ(runs[0][i].volume_m3, runs[1][i].volume_m3);
   }

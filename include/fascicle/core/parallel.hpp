@@ -30,4 +30,12 @@ void parallel_for(std::size_t n, const std::function<void(std::size_t)>& body);
 // The number of threads TBB will use now.
 int max_threads();
 
+// fascicle parallelises over muscles, bodies and points with TBB; the BLAS under the sparse
+// Cholesky factorisations must not start thread teams of its own inside those loops. When the
+// process's BLAS is OpenBLAS (Debian's libopenblas0-pthread provides libblas.so.3), this limits it
+// to one thread per call, once per process; with another BLAS it does nothing. Cheap after the
+// first call. (OpenBLAS's *serial* build is not safe to call from several threads at once: results
+// then differ run to run — use the pthread build.)
+void use_single_threaded_blas();
+
 }  // namespace fascicle
