@@ -95,7 +95,8 @@ INSTANTIATE_TEST_SUITE_P(
                  "opensim/motions/subject_walk_armless_coordinates.mot", "Rajagopal2016", 80,
                  "hip_flexion_r"},
         EndToEnd{"opensim/models/arm26.osim", "opensim/motions/arm26_InverseKinematics.mot",
-                 "arm26", 6, "r_elbow_flex"}));
+                 "arm26", 6, "r_elbow_flex"}),
+    [](const auto& info) { return test::make_test_name(info.param.model, info.index); });
 
 TEST(CliAnalyze, RequestedCoordinatesOnly) {
   const fs::path dir = test::scratch_dir("cli_analyze_coords");

@@ -84,7 +84,8 @@ INSTANTIATE_TEST_SUITE_P(
                       RoundTrip{"m_binary.vtp", MeshEncoding::binary, false, true},
                       RoundTrip{"m_binary_z.vtp", MeshEncoding::binary, true, true},
                       RoundTrip{"m_appended.vtp", MeshEncoding::appended, false, true},
-                      RoundTrip{"m_appended_z.VTP", MeshEncoding::appended, true, true}));
+                      RoundTrip{"m_appended_z.VTP", MeshEncoding::appended, true, true}),
+    [](const auto& info) { return test::make_test_name(info.param.file, info.index); });
 
 TEST(MeshIo, EncodingsAreWhatTheyClaim) {
   const auto dir = test::scratch_dir("mesh_encodings");

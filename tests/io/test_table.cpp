@@ -52,7 +52,8 @@ INSTANTIATE_TEST_SUITE_P(
         Expected{"opensim/tests/std_testGeometryPathWrapping_subject_walk_armless_muscle_lengths.sto",
                  238, 18, false, "/forceset/bifemsh_r|length", 0.0, 0.1933032028885762, 2.37},
         Expected{"opensim/tests/std_testGeometryPathWrapping_walk_gait1018_muscle_lengths.sto", 151,
-                 18, false, "/forceset/hamstrings_r|length", 0.0, 0.4510537601596267, 2.5}));
+                 18, false, "/forceset/hamstrings_r|length", 0.0, 0.4510537601596267, 2.5}),
+    [](const auto& info) { return test::make_test_name(info.param.file, info.index); });
 
 TEST(Table, HeaderKeysAndName) {
   const Table t = read_table(test::data_path("opensim/motions/subject01_walk1_ik.mot"));

@@ -185,7 +185,8 @@ INSTANTIATE_TEST_SUITE_P(
         MomentArmCase{"opensim/models/Rajagopal/Rajagopal2016.osim",
                       "opensim/motions/subject_walk_armless_coordinates.mot", {0, 100}, 2 * 80 * 10},
         MomentArmCase{"opensim/models/arm26.osim", "opensim/motions/arm26_InverseKinematics.mot",
-                      {0, 40, 80, 120}, 20}));
+                      {0, 40, 80, 120}, 20}),
+    [](const auto& info) { return test::make_test_name(info.param.model, info.index); });
 
 TEST(SpannedCoordinates, Arm26AndGait2392) {
   const OsimAnalysisModel arm = load("opensim/models/arm26.osim");

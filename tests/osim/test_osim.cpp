@@ -54,7 +54,8 @@ INSTANTIATE_TEST_SUITE_P(
         Counts{"opensim/models/arm26.osim", 3, 3, 2, 6, 6, 0, 4},
         Counts{"opensim/models/subject_walk_armless_18musc.osim", 14, 14, 25, 18, 18, 2, 40, false},
         Counts{"opensim/models/walk_gait1018_subject01.osim", 12, 12, 10, 18, 18, 0, 0, false},
-        Counts{"opensim/models/test_wrapAllVis.osim", 4, 4, 5, 1, 1, 0, 6}));
+        Counts{"opensim/models/test_wrapAllVis.osim", 4, 4, 5, 1, 1, 0, 6}),
+    [](const auto& info) { return test::make_test_name(info.param.file, info.index); });
 
 // Poses of the walking motion give bone transforms that move continuously from frame to frame.
 TEST(Osim, Gait2392WalkingPosesAreContinuous) {

@@ -114,7 +114,8 @@ INSTANTIATE_TEST_SUITE_P(
                    "opensim/motions/subject_walk_armless_coordinates.mot",
                    "opensim/tests/std_testGeometryPathWrapping_subject_walk_armless_muscle_lengths.sto",
                    1e-6, {{"med_gas_r", 6e-3}, {"med_gas_l", 6e-3}},
-                   CylinderMethod::opensim_iterative}));
+                   CylinderMethod::opensim_iterative}),
+    [](const auto& info) { return test::make_test_name(info.param.model, info.index); });
 
 }  // namespace
 }  // namespace fascicle

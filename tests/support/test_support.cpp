@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <array>
+#include <cctype>
 #include <cstdio>
 #include <cstdlib>
 #include <stdexcept>
@@ -34,6 +35,13 @@ std::filesystem::path source_path(const std::string& relative) {
   const std::filesystem::path p = std::filesystem::path(FASCICLE_SOURCE_DIR) / relative;
   if (!std::filesystem::exists(p)) throw std::runtime_error("repository file missing: " + p.string());
   return p;
+}
+
+std::string make_test_name(const std::string& text, std::size_t index) {
+  std::string name = std::filesystem::path(text).stem().string();
+  for (char& c : name)
+    if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';
+  return name + "_" + std::to_string(index);
 }
 
 CommandResult run_command(const std::string& command) {

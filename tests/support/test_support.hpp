@@ -17,6 +17,10 @@ std::filesystem::path data_path(const std::string& relative);
 // does not exist.
 std::filesystem::path source_path(const std::string& relative);
 
+// A readable parameterised-test name: the stem of `text` (a file path or name) with every
+// character other than a letter or digit replaced by '_', then '_' and the case index.
+std::string make_test_name(const std::string& text, std::size_t index);
+
 // Runs a shell command and captures its standard output (append " 2>&1" to the command to
 // capture standard error too). exit_code is -1 when the command did not exit normally.
 struct CommandResult {
