@@ -273,6 +273,7 @@ SceneSpec make_scene_from_osim(const OsimModel& osim, const OsimSceneOptions& op
     m.actuator.parameters = p;
     m.activation = options.activation >= 0.0 ? options.activation : std::clamp(a.default_activation, 0.0, 1.0);
     m.fibre_template = p.pennation_at_optimal_rad > 5.0 * M_PI / 180.0 ? "pennate" : "parallel";
+    m.options = options.muscle_options;
     spec.muscles.push_back(std::move(m));
   }
   if (skipped > 0)

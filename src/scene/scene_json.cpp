@@ -86,6 +86,7 @@ SchemaNode get_scene_schema(const Registry& registry) {
           optional("specific_tension", number(1e-3)),
           optional("activation", number(0.0, 1.0)),
           optional("representation", one_of(registry.get_representation_names())),
+          optional("options", map(number())),
       })),
       optional("muscles", array(muscle)),
       optional("motion", object({required("file", string()), optional("frame_rate", number(1e-6))})),
@@ -194,6 +195,8 @@ SceneSpec parse_scene(const std::string& text, const std::filesystem::path& path
     options.belly.specific_tension_Pa = 1e4 * o.value("specific_tension", 25.0);
     options.activation = o.value("activation", -1.0);
     if (o.contains("representation")) options.representation = o.at("representation").get<std::string>();
+    const json muscle_options = o.value("options", json::object());  // items() must not outlive it
+    for (const auto& [key, value] : muscle_options.items()) options.muscle_options[key] = value.get<double>();
     try {
       spec = make_scene_from_osim(read_osim(model_file, import), options);
     } catch (const Error& e) {

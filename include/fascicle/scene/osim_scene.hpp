@@ -8,6 +8,7 @@
 #include "fascicle/osim/osim_model.hpp"
 #include "fascicle/scene/scene_spec.hpp"
 
+#include <map>
 #include <string>
 #include <vector>
 
@@ -60,6 +61,7 @@ struct OsimSceneOptions {
   std::vector<std::string> muscles;  // names or shell patterns ("*_r") to keep (empty: every Hill muscle)
   std::string representation = "surface_first";
   double activation = -1.0;                // constant activation; < 0: each muscle's default
+  std::map<std::string, double> muscle_options;  // representation options of every muscle
   GeneratedBellyOptions belly;
 };
 
