@@ -126,8 +126,7 @@ INSTANTIATE_TEST_SUITE_P(
         if (ch == '.') ch = '_';
       }
       return n;
-    },
-    [](const auto& info) { return test::make_test_name(info.param.name, info.index); });
+    });
 
 }  // namespace
 }  // namespace fascicle
