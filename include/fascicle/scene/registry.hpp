@@ -65,7 +65,7 @@ class MuscleGroupRepresentation {
   virtual std::unique_ptr<RepresentationState> make_state() const { return nullptr; }
   // The surface the group draws for member k at rest, when it is not the muscle's own mesh (the
   // Model then holds this one as the muscle's rest mesh, so frames' surfaces match its rows).
-  virtual const TriMesh* get_rest_surface(int member) const { return nullptr; }
+  virtual const TriMesh* get_rest_surface(int /*member*/) const { return nullptr; }
   // out[k] is the frame of member k (muscles[k]).
   virtual void calc_geometry(const Model& model, const std::vector<MuscleIndex>& muscles, const State& state,
                              RepresentationState* rs, const std::vector<MuscleFrame*>& out) const = 0;
