@@ -342,7 +342,7 @@ Model compile(const SceneSpec& spec, const Registry& registry) {
   // bones. Built in parallel: an Embree scene per body mesh.
   parallel_for(model.bodies.size(), [&](size_t b) {
     Body& body = model.bodies[b];
-    if (body.mesh.V.rows() == 0) return;
+    if (body.mesh.V.rows() == 0 || !body.mesh_is_obstacle) return;  // drawn only: no queries
     const Transform& X = model.X_ground_body_default[b];
     TriMesh placed{((body.mesh.V * X.linear().transpose()).rowwise() + X.translation().transpose()).eval(),
                    body.mesh.F};

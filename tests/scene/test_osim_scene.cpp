@@ -187,6 +187,7 @@ TEST_F(Gait2392Scene, WalkingKeepsVolumesAndFollowsThePathsAndActivations) {
   EXPECT_TRUE(model.get_body(model.find_body("tibia_r")).mesh_is_obstacle);
   EXPECT_TRUE(model.get_body(model.find_body("tibia_r")).rest_query != nullptr);
   EXPECT_FALSE(model.get_body(model.find_body("pelvis")).mesh_is_obstacle);
+  EXPECT_EQ(model.get_body(model.find_body("pelvis")).rest_query, nullptr);  // not an obstacle
 }
 
 TEST_F(Gait2392Scene, ActivationTableWithoutMatchingColumnIsBadInput) {
