@@ -18,15 +18,30 @@ using namespace scene_detail;
 class FibresFirst final : public MuscleGroupRepresentation {
  public:
   FibresFirst(const Model& model, const std::vector<MuscleIndex>& muscles) {
-    // Bones: every body with an obstacle mesh, in body order.
+    // Bones: every body with an obstacle mesh, in body order; and the origin and insertion bodies
+    // of the group's muscles even when their mesh is drawn only (an open OpenSim mesh): fibre ends
+    // are fixed to them, and their contacts are only as good as that mesh's inside test.
+    std::vector<char> attached(model.bodies.size(), 0);
+    for (MuscleIndex mi : muscles) {
+      attached[model.get_muscle(mi).origin.body.v] = 1;
+      attached[model.get_muscle(mi).insertion.body.v] = 1;
+    }
     std::vector<int> bone_of_body(model.bodies.size(), -1);
     std::vector<const MeshQuery*> bones;
-    for (int b = 1; b < model.num_bodies(); ++b)
-      if (model.bodies[b].rest_query) {
-        bone_of_body[b] = static_cast<int>(bones.size());
-        bones.push_back(model.bodies[b].rest_query.get());
-        bone_bodies_.push_back(BodyIndex{b});
+    for (int b = 1; b < model.num_bodies(); ++b) {
+      const Body& body = model.bodies[b];
+      const MeshQuery* query = body.rest_query.get();
+      if (!query && attached[b] && body.mesh.V.rows() > 0) {
+        const Transform& X = model.X_ground_body_default[b];
+        own_queries_.push_back(std::make_unique<const MeshQuery>(TriMesh{
+            ((body.mesh.V * X.linear().transpose()).rowwise() + X.translation().transpose()).eval(), body.mesh.F}));
+        query = own_queries_.back().get();
       }
+      if (!query) continue;
+      bone_of_body[b] = static_cast<int>(bones.size());
+      bones.push_back(query);
+      bone_bodies_.push_back(BodyIndex{b});
+    }
     const Muscle& first = model.get_muscle(muscles.front());
     FibresFirstOptions o;
     o.particles_per_fibre = static_cast<int>(get_option(first, "particles_per_fibre", o.particles_per_fibre));
@@ -61,10 +76,10 @@ class FibresFirst final : public MuscleGroupRepresentation {
       s.insertion_bone = bone_of_body[m.insertion.body.v];
       if (s.origin_bone < 0 || s.insertion_bone < 0)
         throw_bad_input("representation 'fibres_first' fixes fibre ends to the origin and insertion bodies, "
-                        "which need closed meshes",
+                        "which need meshes",
                         {.object = m.name, .suggestion = "give body '" +
                                                          model.bodies[(s.origin_bone < 0 ? m.origin : m.insertion).body.v].name +
-                                                         "' a closed mesh, or use 'surface_first'"});
+                                                         "' a mesh, or use 'surface_first'"});
       s.volume_m3 = m.rest_volume_m3;
       specs.push_back(std::move(s));
     }
@@ -125,6 +140,7 @@ class FibresFirst final : public MuscleGroupRepresentation {
     return fibres;
   }
 
+  std::vector<std::unique_ptr<const MeshQuery>> own_queries_;  // drawn-only attachment bodies
   FibresFirstModel model_;
   std::vector<BodyIndex> bone_bodies_;  // per bone of the model
   std::vector<TriMesh> rest_surfaces_;  // per member
