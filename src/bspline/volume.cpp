@@ -47,26 +47,23 @@ void calc_gauss_legendre(int n, std::vector<double>& nodes, std::vector<double>&
 
 int find_volume_quadrature_order(int degree) { return std::max(1, (3 * degree + 1) / 2); }
 
-namespace {
-
-struct SpanPoint {
-  double t;
-  double weight;
-};
-
-// Quadrature points over all non-empty knot spans of a direction.
-std::vector<SpanPoint> make_span_points(const BSplineBasis& b) {
+std::vector<SpanPoint> calc_span_quadrature(const BSplineBasis& b, int points_per_span) {
   std::vector<double> xi, wi;
-  calc_gauss_legendre(find_volume_quadrature_order(b.degree), xi, wi);
+  calc_gauss_legendre(points_per_span, xi, wi);
   std::vector<SpanPoint> out;
   for (int s = b.degree; s < b.num_functions(); ++s) {
     const double a = b.knots[s], c = b.knots[s + 1];
     if (!(c > a)) continue;
-    for (std::size_t q = 0; q < xi.size(); ++q) {
+    for (std::size_t q = 0; q < xi.size(); ++q)
       out.push_back({0.5 * (a + c) + 0.5 * (c - a) * xi[q], 0.5 * (c - a) * wi[q]});
-    }
   }
   return out;
+}
+
+namespace {
+
+std::vector<SpanPoint> make_span_points(const BSplineBasis& b) {
+  return calc_span_quadrature(b, find_volume_quadrature_order(b.degree));
 }
 
 }  // namespace

@@ -2,13 +2,13 @@
 // the volume held by a Lagrange multiplier, bone and muscle contacts as stiff targets, and optional
 // backward-Euler dynamics (see fibres_first.hpp and docs/representations.md).
 #include "fascicle/deformation/fibres_first.hpp"
+#include "point_tree.hpp"
 
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/parallel.hpp"
 #include "fascicle/deformation/mesh_operators.hpp"
 
 #include <cholmod.h>
-#include <nanoflann.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -23,15 +23,8 @@ ErrorContext frame_context(const std::string& name, std::string suggestion = {})
   return {.object = name, .suggestion = std::move(suggestion)};
 }
 
-struct PointCloud {
-  const Points3& P;
-  std::size_t kdtree_get_point_count() const { return static_cast<std::size_t>(P.rows()); }
-  double kdtree_get_pt(std::size_t i, std::size_t d) const { return P(i, d); }
-  template <class Box>
-  bool kdtree_get_bbox(Box&) const { return false; }
-};
-using PointTree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, PointCloud>,
-                                                      PointCloud, 3, std::size_t>;
+using detail::PointCloud;
+using detail::PointTree;
 
 // Surface vertices of a muscle from particle positions (rings, then the two cap centres).
 Points3 gather_surface(const FibreBundle& m, const Points3& x, int P) {

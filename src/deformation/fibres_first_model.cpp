@@ -1,11 +1,11 @@
 // Fibres-first model: particles along the rest fibres, the spring network, bone attachments and
 // the display surface (see fibres_first.hpp and docs/representations.md).
 #include "fascicle/deformation/fibres_first.hpp"
+#include "point_tree.hpp"
 
 #include "fascicle/core/error.hpp"
 #include "fascicle/deformation/mesh_operators.hpp"
 
-#include <nanoflann.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -43,16 +43,8 @@ Points3 resample_uniform(const Points3& line, int count) {
   return out;
 }
 
-// k-d tree over a #P x 3 array (nanoflann adaptor).
-struct PointCloud {
-  const Points3& P;
-  std::size_t kdtree_get_point_count() const { return static_cast<std::size_t>(P.rows()); }
-  double kdtree_get_pt(std::size_t i, std::size_t d) const { return P(i, d); }
-  template <class Box>
-  bool kdtree_get_bbox(Box&) const { return false; }
-};
-using PointTree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, PointCloud>,
-                                                      PointCloud, 3, std::size_t>;
+using detail::PointCloud;
+using detail::PointTree;
 
 // Symmetrised k-nearest-neighbour graph of the fibres, measured between their middle particles
 // (the rest cross-section). Returns unordered pairs (f < g).

@@ -15,24 +15,6 @@ namespace fascicle {
 
 namespace {
 
-struct SpanPoint {
-  double t, w;
-};
-
-std::vector<SpanPoint> make_span_points(const BSplineBasis& b, int n) {
-  std::vector<double> xi, wi;
-  calc_gauss_legendre(n, xi, wi);
-  std::vector<SpanPoint> out;
-  for (int s = b.degree; s < b.num_functions(); ++s) {
-    const double a = b.knots[s], c = b.knots[s + 1];
-    if (!(c > a)) continue;
-    for (std::size_t q = 0; q < xi.size(); ++q) {
-      out.push_back({0.5 * (a + c) + 0.5 * (c - a) * xi[q], 0.5 * (c - a) * wi[q]});
-    }
-  }
-  return out;
-}
-
 // Support of a material point: indices, N and ∇_U N of the non-zero tensor-product functions.
 struct Support {
   std::vector<int> index;
@@ -125,7 +107,7 @@ SolidDynamicsModel compile_solid_dynamics(const BSplineSolid& rest, const SolidD
   for (int d = 0; d < 3; ++d) {
     const int nq = spec.quadrature_points_per_span > 0 ? spec.quadrature_points_per_span
                                                        : rest.basis[d].degree + 1;
-    g[d] = make_span_points(rest.basis[d], nq);
+    g[d] = calc_span_quadrature(rest.basis[d], nq);
   }
   const int f = static_cast<int>(rest.fibre_direction);
   const BSplineBasis& fb = rest.basis[f];
@@ -150,7 +132,7 @@ SolidDynamicsModel compile_solid_dynamics(const BSplineSolid& rest, const SolidD
                .suggestion = "check the control points near that material location "
                              "(crossed or collapsed layers); refit the solid"});
         }
-        q.weight_m3 = qu.w * qv.w * qw.w * detJ;
+        q.weight_m3 = qu.weight * qv.weight * qw.weight * detJ;
         const Mat3 JinvT = J.inverse().transpose();
         q.first = static_cast<int>(m.support_index.size());
         q.count = static_cast<int>(sp.index.size());

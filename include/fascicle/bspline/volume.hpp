@@ -30,6 +30,14 @@ void calc_gauss_legendre(int n, std::vector<double>& nodes, std::vector<double>&
 // Points per knot span that integrate det J exactly for a direction of this degree.
 int find_volume_quadrature_order(int degree);
 
+// Gauss–Legendre points of every non-empty knot span of a direction: parameter t and weight
+// (the span's half-length times the rule's weight), `points_per_span` per span.
+struct SpanPoint {
+  double t = 0.0;
+  double weight = 0.0;
+};
+std::vector<SpanPoint> calc_span_quadrature(const BSplineBasis& basis, int points_per_span);
+
 // Volume by quadrature of det J over the parametric box (any knots).
 double calc_volume(const BSplineSolid& solid);
 VolumeAndGradient calc_volume_and_gradient(const BSplineSolid& solid);
