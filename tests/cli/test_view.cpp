@@ -42,25 +42,6 @@ const fs::path& get_demo_dir() {
   return dir;
 }
 
-int http_get(int port, const std::string& raw_path, std::string* body = nullptr) {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_port = htons(static_cast<uint16_t>(port));
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  if (::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0) {
-    ::close(fd);
-    return -1;
-  }
-  const std::string req = "GET " + raw_path + " HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n";
-  (void)!::write(fd, req.data(), req.size());
-  std::string resp;
-  char buf[65536];
-  for (ssize_t n; (n = ::read(fd, buf, sizeof buf)) > 0;) resp.append(buf, n);
-  ::close(fd);
-  if (body) *body = resp.substr(std::min(resp.size(), resp.find("\r\n\r\n") + 4));
-  return resp.size() > 12 ? std::stoi(resp.substr(9, 3)) : -1;
-}
 
 }  // namespace
 
@@ -124,12 +105,12 @@ TEST(CliView, ServesOnLoopbackAndRefusesTraversal) {
   ASSERT_TRUE(std::regex_search(first, m, std::regex(R"(http://127\.0\.0\.1:(\d+)/)"))) << first;
   const int port = std::stoi(m[1]);
   std::string body;
-  EXPECT_EQ(http_get(port, "/run/viewer/manifest.json", &body), 200);
+  EXPECT_EQ(test::http_get(port, "/run/viewer/manifest.json", &body), 200);
   EXPECT_NE(body.find("fascicle-viewer"), std::string::npos);
-  EXPECT_EQ(http_get(port, "/", &body), 200);
+  EXPECT_EQ(test::http_get(port, "/", &body), 200);
   for (const char* p : {"/run/../secret.txt", "/run/viewer/../../secret.txt", "/../secret.txt",
                         "/run/%2e%2e/secret.txt", "/run/..%2fsecret.txt", "/run/../../../../etc/passwd"}) {
-    const int status = http_get(port, p, &body);
+    const int status = test::http_get(port, p, &body);
     EXPECT_TRUE(status == 403 || status == 404) << p << " → " << status;
     EXPECT_EQ(body.find("do not serve"), std::string::npos) << p;
     EXPECT_EQ(body.find("root:"), std::string::npos) << p;

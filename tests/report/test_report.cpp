@@ -72,26 +72,6 @@ std::string read_text(const fs::path& p) {
   return s.str();
 }
 
-// A plain HTTP/1.0 GET to 127.0.0.1 with the path sent exactly as given (no normalisation).
-int http_status(int port, const std::string& path, std::string* body = nullptr) {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_port = htons(static_cast<uint16_t>(port));
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  if (::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0) {
-    ::close(fd);
-    return -1;
-  }
-  const std::string req = "GET " + path + " HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n";
-  (void)!::write(fd, req.data(), req.size());
-  std::string resp;
-  char buf[65536];
-  for (ssize_t n; (n = ::read(fd, buf, sizeof buf)) > 0;) resp.append(buf, n);
-  ::close(fd);
-  if (body) *body = resp.substr(std::min(resp.size(), resp.find("\r\n\r\n") + 4));
-  return resp.size() > 12 ? std::stoi(resp.substr(9, 3)) : -1;
-}
 
 // The demo leg, compiled once for the writer tests.
 struct DemoRun {
@@ -386,18 +366,18 @@ TEST(ViewServer, ServesOverHttpRejectsTraversalAndReportsABusyPort) {
   std::string body;
   int status = -1;
   for (int attempt = 0; attempt < 100 && status != 200; ++attempt) {
-    status = http_status(port, "/run/viewer/manifest.json", &body);
+    status = test::http_get(port, "/run/viewer/manifest.json", &body);
     if (status != 200) std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
   EXPECT_EQ(status, 200);
   EXPECT_EQ(body, "{\"format\":\"fascicle-viewer\"}");
-  EXPECT_EQ(http_status(port, "/", &body), 200);
+  EXPECT_EQ(test::http_get(port, "/", &body), 200);
   EXPECT_NE(body.find("<html"), std::string::npos);
-  EXPECT_EQ(http_status(port, "/run/../secret.txt", &body), 403);
+  EXPECT_EQ(test::http_get(port, "/run/../secret.txt", &body), 403);
   EXPECT_EQ(body.find("secret"), std::string::npos);
-  EXPECT_EQ(http_status(port, "/run/%2e%2e/secret.txt"), 403);
-  EXPECT_EQ(http_status(port, "/../secret.txt"), 404);
-  EXPECT_EQ(http_status(port, "/run/nothing"), 404);
+  EXPECT_EQ(test::http_get(port, "/run/%2e%2e/secret.txt"), 403);
+  EXPECT_EQ(test::http_get(port, "/../secret.txt"), 404);
+  EXPECT_EQ(test::http_get(port, "/run/nothing"), 404);
   // The port is taken now: a second server on it is a clear bad-input error.
   try {
     ViewServer second({.run_dir = root / "run", .viewer_dir = {}, .port = port});

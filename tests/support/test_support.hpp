@@ -21,6 +21,11 @@ std::filesystem::path source_path(const std::string& relative);
 // character other than a letter or digit replaced by '_', then '_' and the case index.
 std::string make_test_name(const std::string& text, std::size_t index);
 
+// A plain HTTP/1.0 GET to 127.0.0.1:port with `raw_path` sent exactly as given (no
+// normalisation, for traversal tests). Returns the status code (-1 when nothing answers) and,
+// when `body` is given, the response body.
+int http_get(int port, const std::string& raw_path, std::string* body = nullptr);
+
 // Runs a shell command and captures its standard output (append " 2>&1" to the command to
 // capture standard error too). exit_code is -1 when the command did not exit normally.
 struct CommandResult {
