@@ -55,8 +55,9 @@ std::vector<double> numbers(const std::vector<std::string>& f, size_t from) {
 }  // namespace
 
 TEST(PreviousImplementation, EquilibriumAndStateRatesUnchanged) {
+  // source_path, not __FILE__: ccache may compile with relative paths.
   const std::filesystem::path csv =
-      std::filesystem::path(__FILE__).parent_path() / "data" / "previous_implementation_outputs.csv";
+      fascicle::test::source_path("tests/musculotendon/data/previous_implementation_outputs.csv");
   std::ifstream in(csv);
   ASSERT_TRUE(in) << "missing " << csv;
   std::map<std::string, Musculotendon> synth;
