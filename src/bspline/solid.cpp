@@ -1,6 +1,8 @@
 // Trivariate B-spline solid evaluation (seed 000 ch. 3).
 #include "fascicle/bspline/solid.hpp"
 
+#include "basis_fixed.hpp"
+
 #include "fascicle/core/error.hpp"
 
 #include <fmt/format.h>
@@ -63,8 +65,137 @@ Vec3 wrap_material_point(const BSplineSolid& s, const Vec3& uvw) {
 
 namespace {
 
+// Unrolled control index of direction d as a row offset: control_index without the division.
+inline int wrap_index(const BSplineBasis& b, int i) {
+  return (b.periodic && i >= b.num_control) ? i - b.num_control : i;
+}
+
+// Degree-specialised evaluation (degrees PU, PV, PW known at compile time): the 3 bases by the
+// fixed-size recurrence, then the (PU+1)(PV+1)(PW+1) block of control points contracted u first
+// (control points along u are adjacent in each coordinate column), then v, then w. The value is
+// accumulated in the same order with and without the Jacobian, so calc_point and
+// calc_point_and_jacobian agree to the last bit.
+template <int PU, int PV, int PW, bool kJacobian>
+SolidPoint evaluate_fixed(const BSplineSolid& s, const Points3& P, const Vec3& uvw) {
+  using bspline_detail::calc_fixed_basis;
+  const auto bu = calc_fixed_basis<PU, kJacobian>(s.basis[0], uvw[0]);
+  const auto bv = calc_fixed_basis<PV, kJacobian>(s.basis[1], uvw[1]);
+  const auto bw = calc_fixed_basis<PW, kJacobian>(s.basis[2], uvw[2]);
+  const int nu = s.num_control(0), nuv = nu * s.num_control(1);
+  int iu[PU + 1], jv[PV + 1], kw[PW + 1];
+  for (int a = 0; a <= PU; ++a) iu[a] = wrap_index(s.basis[0], bu.first + a);
+  for (int b = 0; b <= PV; ++b) jv[b] = nu * wrap_index(s.basis[1], bv.first + b);
+  for (int c = 0; c <= PW; ++c) kw[c] = nuv * wrap_index(s.basis[2], bw.first + c);
+  const Eigen::Index stride = P.rows();
+  const double* px = P.data();
+  if constexpr (PU == 3) {
+    if (iu[3] == iu[0] + 3) {
+      // Cubic in u on adjacent rows: the four u-neighbours of each coordinate are two SIMD pairs.
+      // Every output accumulates coefficient * control point in pairs; the value uses the same
+      // products with and without the Jacobian.
+      using A2 = Eigen::Array2d;
+      const A2 u0a(bu.N0[0], bu.N0[1]), u0b(bu.N0[2], bu.N0[3]);
+      A2 u1a = A2::Zero(), u1b = A2::Zero();
+      if constexpr (kJacobian) u1a = A2(bu.N1[0], bu.N1[1]), u1b = A2(bu.N1[2], bu.N1[3]);
+      A2 acc[4][3];  // output (x, xu, xv, xw) x coordinate, lane-wise partial sums
+      for (auto& o : acc) o[0] = o[1] = o[2] = A2::Zero();
+      for (int c = 0; c <= PW; ++c) {
+        A2 sv[3] = {A2::Zero(), A2::Zero(), A2::Zero()};
+        A2 svu[3] = {A2::Zero(), A2::Zero(), A2::Zero()};
+        A2 svv[3] = {A2::Zero(), A2::Zero(), A2::Zero()};
+        for (int b = 0; b <= PV; ++b) {
+          const double* row = px + jv[b] + kw[c] + iu[0];
+          for (int q = 0; q < 3; ++q) {
+            const A2 pa = Eigen::Map<const A2>(row + q * stride);
+            const A2 pb = Eigen::Map<const A2>(row + q * stride + 2);
+            const A2 t0 = u0a * pa + u0b * pb;
+            sv[q] += bv.N0[b] * t0;
+            if constexpr (kJacobian) {
+              svu[q] += bv.N0[b] * (u1a * pa + u1b * pb);
+              svv[q] += bv.N1[b] * t0;
+            }
+          }
+        }
+        for (int q = 0; q < 3; ++q) {
+          acc[0][q] += bw.N0[c] * sv[q];
+          if constexpr (kJacobian) {
+            acc[1][q] += bw.N0[c] * svu[q];
+            acc[2][q] += bw.N0[c] * svv[q];
+            acc[3][q] += bw.N1[c] * sv[q];
+          }
+        }
+      }
+      const auto total = [&](int o, int q) { return acc[o][q].sum(); };
+      SolidPoint out;
+      out.x = Vec3(total(0, 0), total(0, 1), total(0, 2));
+      if constexpr (kJacobian) {
+        for (int d = 0; d < 3; ++d) out.J.col(d) = Vec3(total(d + 1, 0), total(d + 1, 1), total(d + 1, 2));
+      }
+      return out;
+    }
+  }
+  double x[3] = {}, xu[3] = {}, xv[3] = {}, xw[3] = {};
+  for (int c = 0; c <= PW; ++c) {
+    double sv[3] = {}, svu[3] = {}, svv[3] = {};
+    for (int b = 0; b <= PV; ++b) {
+      const double* row = px + jv[b] + kw[c];
+      double r0[3] = {}, r1[3] = {};
+      for (int a = 0; a <= PU; ++a) {
+        for (int q = 0; q < 3; ++q) {
+          const double pq = row[iu[a] + q * stride];
+          r0[q] += bu.N0[a] * pq;
+          if constexpr (kJacobian) r1[q] += bu.N1[a] * pq;
+        }
+      }
+      for (int q = 0; q < 3; ++q) {
+        sv[q] += bv.N0[b] * r0[q];
+        if constexpr (kJacobian) {
+          svu[q] += bv.N0[b] * r1[q];
+          svv[q] += bv.N1[b] * r0[q];
+        }
+      }
+    }
+    for (int q = 0; q < 3; ++q) {
+      x[q] += bw.N0[c] * sv[q];
+      if constexpr (kJacobian) {
+        xu[q] += bw.N0[c] * svu[q];
+        xv[q] += bw.N0[c] * svv[q];
+        xw[q] += bw.N1[c] * sv[q];
+      }
+    }
+  }
+  SolidPoint out;
+  out.x = Vec3(x[0], x[1], x[2]);
+  if constexpr (kJacobian) {
+    out.J << xu[0], xv[0], xw[0],
+             xu[1], xv[1], xw[1],
+             xu[2], xv[2], xw[2];
+  }
+  return out;
+}
+
+// Dispatch to a degree-specialised kernel for degrees 2 and 3 in every direction (cubic solids and
+// the fitted (2,3,3) muscle lattices); false for other degrees (general path).
+template <bool kJacobian, int... Ps>
+bool evaluate_specialised(const BSplineSolid& s, const Points3& P, const Vec3& uvw,
+                          SolidPoint& out) {
+  constexpr int level = sizeof...(Ps);
+  if constexpr (level == 3) {
+    out = evaluate_fixed<Ps..., kJacobian>(s, P, uvw);
+    return true;
+  } else {
+    switch (s.basis[level].degree) {
+      case 2: return evaluate_specialised<kJacobian, Ps..., 2>(s, P, uvw, out);
+      case 3: return evaluate_specialised<kJacobian, Ps..., 3>(s, P, uvw, out);
+      default: return false;
+    }
+  }
+}
+
 template <bool kJacobian>
 SolidPoint evaluate(const BSplineSolid& s, const Points3& P, const Vec3& uvw) {
+  SolidPoint fast;
+  if (evaluate_specialised<kJacobian>(s, P, uvw, fast)) return fast;
   const int nd = kJacobian ? 1 : 0;
   const BasisValues bu = calc_basis(s.basis[0], uvw[0], nd);
   const BasisValues bv = calc_basis(s.basis[1], uvw[1], nd);

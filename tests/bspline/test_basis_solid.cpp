@@ -137,6 +137,63 @@ TEST(Solid, AffineReproduction) {
   EXPECT_NEAR(calc_boundary_volume(s), A.determinant(), 1e-15);
 }
 
+// Reference evaluation from dense basis values (calc_all_basis_values): no specialised kernel.
+SolidPoint evaluate_densely(const BSplineSolid& s, const Vec3& uvw) {
+  std::array<std::array<std::vector<double>, 2>, 3> N;
+  for (int d = 0; d < 3; ++d)
+    for (int k = 0; k < 2; ++k) N[d][k] = calc_all_basis_values(s.basis[d], uvw[d], k);
+  SolidPoint out;
+  for (int k = 0; k < s.num_control(2); ++k)
+    for (int j = 0; j < s.num_control(1); ++j)
+      for (int i = 0; i < s.num_control(0); ++i) {
+        const Vec3 p = s.P.row(s.index(i, j, k)).transpose();
+        out.x += N[0][0][i] * N[1][0][j] * N[2][0][k] * p;
+        out.J.col(0) += N[0][1][i] * N[1][0][j] * N[2][0][k] * p;
+        out.J.col(1) += N[0][0][i] * N[1][1][j] * N[2][0][k] * p;
+        out.J.col(2) += N[0][0][i] * N[1][0][j] * N[2][1][k] * p;
+      }
+  return out;
+}
+
+// The degree-specialised kernels (degrees 2 and 3, adjacent or periodic neighbours) equal the
+// dense reference at random points, on knots and on the domain ends, and calc_point equals the
+// position calc_point_and_jacobian returns bit for bit.
+TEST(Solid, SpecialisedEvaluationMatchesDenseReference) {
+  std::vector<BSplineSolid> solids;
+  solids.push_back(make_wobbly_solid(11, 0.3, 0.3));  // degrees (3, 2, 3)
+  {
+    auto s = make_cubical_lattice(Vec3(0, 0, 0), Vec3(0.03, 0.03, 0.12), {3, 3, 3}, {6, 6, 8}).solid;
+    s.basis[1] = make_clamped_basis(3, 6, {0.1, 0.7});  // non-uniform knots
+    solids.push_back(s);
+  }
+  for (const auto& degree : {std::array<int, 3>{2, 3, 3}, std::array<int, 3>{3, 3, 3}}) {
+    auto cyl = make_cylindrical_lattice(0.01, 0.1, degree, {4, 9, 7}).solid;  // v periodic
+    std::swap(cyl.basis[0], cyl.basis[1]);  // a periodic u direction too (neighbours wrap)
+    auto P = cyl.P;
+    for (int k = 0; k < 7; ++k)
+      for (int j = 0; j < 4; ++j)
+        for (int i = 0; i < 9; ++i) P.row(i + 9 * (j + 4 * k)) = cyl.P.row(j + 4 * (i + 9 * k));
+    cyl.P = P;
+    solids.push_back(make_solid(cyl.basis, cyl.P));
+    solids.push_back(make_cylindrical_lattice(0.01, 0.1, degree, {4, 9, 7}).solid);
+  }
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> U(-0.1, 1.1);
+  for (const auto& s : solids) {
+    const double scale = s.P.cwiseAbs().maxCoeff();
+    for (int n = 0; n < 300; ++n) {
+      Vec3 uvw(U(rng), U(rng), U(rng));
+      if (n % 3 == 0) uvw[n % 9 / 3] = std::round(uvw[n % 9 / 3] * 4) / 4;  // ends and knots
+      const Vec3 w = wrap_material_point(s, uvw);
+      const SolidPoint ref = evaluate_densely(s, w);
+      const SolidPoint sp = calc_point_and_jacobian(s, uvw);
+      EXPECT_LT((sp.x - ref.x).norm(), 1e-15 * scale) << uvw.transpose();
+      EXPECT_LT((sp.J - ref.J).norm(), 1e-13 * scale) << uvw.transpose();
+      EXPECT_EQ(calc_point(s, uvw), sp.x);
+    }
+  }
+}
+
 TEST(Solid, JacobianMatchesFiniteDifferencesAndDeformationGradient) {
   const auto s = make_wobbly_solid(7, 0.3, 0.3);
   std::mt19937 rng(5);
