@@ -535,4 +535,74 @@ OverlapInfo calc_surface_overlap(const Points3& V, const MeshQuery& other) {
   return out;
 }
 
+OverlapInfo calc_surface_overlap(const Points3& V, const Triangles& F, const MeshQuery& other) {
+  OverlapInfo out;
+  const Eigen::Index n = V.rows();
+  if (n == 0) return out;
+  // vertex adjacency (CSR; duplicates are harmless for the traversal)
+  std::vector<int> start(static_cast<std::size_t>(n) + 1, 0), adj(static_cast<std::size_t>(F.rows()) * 6);
+  for (Eigen::Index f = 0; f < F.rows(); ++f)
+    for (int k = 0; k < 3; ++k) start[F(f, k) + 1] += 2;
+  for (Eigen::Index i = 0; i < n; ++i) start[i + 1] += start[i];
+  std::vector<int> fill(start.begin(), start.end() - 1);
+  for (Eigen::Index f = 0; f < F.rows(); ++f)
+    for (int k = 0; k < 3; ++k) {
+      const int a = F(f, k);
+      adj[fill[a]++] = F(f, (k + 1) % 3);
+      adj[fill[a]++] = F(f, (k + 2) % 3);
+    }
+
+  const Points3& B = other.get_mesh().V;
+  Eigen::AlignedBox3d box(B.colwise().minCoeff().transpose(), B.colwise().maxCoeff().transpose());
+  const double pad = 1e-9 * box.diagonal().norm();
+  box.min().array() -= pad;
+  box.max().array() += pad;
+
+  // winding[i]: -1 not yet known; else the winding number of `other` at vertex i (0 or 1)
+  std::vector<int> winding(static_cast<std::size_t>(n), -1);
+  std::vector<int> queue;
+  queue.reserve(static_cast<std::size_t>(n));
+  for (Eigen::Index i = 0; i < n; ++i)
+    if (!box.contains(Vec3(V.row(i).transpose()))) {
+      winding[i] = 0;
+      queue.push_back(static_cast<int>(i));
+    }
+  const auto full_vote = [&](int i) { return other.calc_is_inside(Vec3(V.row(i).transpose())) ? 1 : 0; };
+  // Breadth-first from the known vertices; a component without one is seeded by the full vote at
+  // its lowest-numbered vertex. The order depends on the input only (deterministic).
+  std::size_t head = 0;
+  Eigen::Index next_seed = 0;
+  for (;;) {
+    while (head < queue.size()) {
+      const int p = queue[head++];
+      const Vec3 xp = V.row(p).transpose();
+      for (int k = start[p]; k < start[p + 1]; ++k) {
+        const int q = adj[k];
+        if (winding[q] >= 0) continue;
+        const Vec3 d = Vec3(V.row(q).transpose()) - xp;
+        int w = winding[p];
+        bool grazed = d.squaredNorm() == 0.0;
+        if (!grazed) {
+          for (const RayHit& h : other.cast_ray_all(xp, d, 0.0, 1.0)) {
+            if (!(h.barycentric.minCoeff() > 1e-12) || std::abs(h.normal.dot(d)) <= 1e-12 * d.norm()) grazed = true;
+            w += h.front_facing ? 1 : -1;  // entering through a face raises the winding number
+          }
+        }
+        winding[q] = (grazed || w < 0 || w > 1) ? full_vote(q) : w;
+        queue.push_back(q);
+      }
+    }
+    while (next_seed < n && winding[next_seed] >= 0) ++next_seed;
+    if (next_seed >= n) break;
+    winding[next_seed] = full_vote(static_cast<int>(next_seed));
+    queue.push_back(static_cast<int>(next_seed));
+  }
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (winding[i] <= 0) continue;
+    ++out.vertices_inside;
+    out.max_depth_m = std::max(out.max_depth_m, other.calc_closest_point(V.row(i)).distance);
+  }
+  return out;
+}
+
 }  // namespace fascicle

@@ -3,6 +3,7 @@
 
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/parallel.hpp"
+#include "fascicle/deformation/surface_first.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -155,16 +156,11 @@ void calc_muscle_overlaps(const Model& model, State& state) {
       out.max_muscle_overlap_m = MuscleFrame::nan;
       return;
     }
+    // Inside status propagated along a's edges from vertices outside b's box (one short segment
+    // per vertex instead of a ray vote; same result, deformation/surface_first.hpp).
     double depth = 0.0;
-    for (int b : others[a]) {
-      const Points3& V = out.surface;
-      const Eigen::AlignedBox3d& bb = box[b];
-      for (Eigen::Index i = 0; i < V.rows(); ++i) {
-        const Vec3 p = V.row(i).transpose();
-        if (!bb.contains(p)) continue;
-        if (query[b]->calc_is_inside(p)) depth = std::max(depth, query[b]->calc_closest_point(p).distance);
-      }
-    }
+    for (int b : others[a])
+      depth = std::max(depth, calc_surface_overlap(out.surface, model.muscles[a].rest_mesh.F, *query[b]).max_depth_m);
     out.max_muscle_overlap_m = depth;
   });
 }

@@ -109,6 +109,43 @@ TEST(SurfaceFirstContact, OverlapOfTwoMuscles) {
   EXPECT_LE(o.max_depth_m, 0.005 + 1e-12);
   const OverlapInfo none = calc_surface_overlap(a.V, MeshQuery(make_icosphere(0.01, 2)));
   EXPECT_EQ(none.vertices_inside, 0);
+  // the edge-propagated version gives the same numbers
+  const OverlapInfo o2 = calc_surface_overlap(a.V, a.F, qb);
+  EXPECT_EQ(o2.vertices_inside, o.vertices_inside);
+  EXPECT_EQ(o2.max_depth_m, o.max_depth_m);
+  EXPECT_EQ(calc_surface_overlap(a.V, a.F, MeshQuery(make_icosphere(0.01, 2))).vertices_inside, 0);
+}
+
+// Winding propagation along edges against the per-vertex ray vote: a torus threaded through an
+// ellipsoid (two separate inside regions, non-convex), a surface entirely inside the other's box
+// (no seed outside it), one inside the other, and a sphere against a coarser, rotated one of almost
+// the same radius (many thin inside regions).
+TEST(SurfaceFirstContact, OverlapByPropagationEqualsRayVote) {
+  const TriMesh torus = make_torus(0.03, 0.008, 48, 16);
+  std::vector<std::pair<TriMesh, TriMesh>> cases;
+  cases.emplace_back(torus, make_ellipsoid(Vec3(0.012, 0.05, 0.02), 3));
+  cases.emplace_back(make_ellipsoid(Vec3(0.012, 0.05, 0.02), 3), torus);
+  cases.emplace_back(make_icosphere(0.005, 2), make_icosphere(0.02, 3));
+  TriMesh shifted = make_icosphere(0.02, 3);
+  shifted.V.col(0).array() += 0.01;
+  cases.emplace_back(make_icosphere(0.02, 3), shifted);
+  TriMesh coarse = make_icosphere(0.0201, 2);  // crosses the finer sphere many times, close by
+  coarse.V = (coarse.V * Eigen::AngleAxisd(0.3, Vec3(1, 2, 3).normalized()).toRotationMatrix()).eval();
+  cases.emplace_back(make_icosphere(0.02, 4), coarse);
+  for (std::size_t c = 0; c < cases.size(); ++c) {
+    const auto& [a, b] = cases[c];
+    const MeshQuery qb(b);
+    const OverlapInfo vote = calc_surface_overlap(a.V, qb);
+    const OverlapInfo walk = calc_surface_overlap(a.V, a.F, qb);
+    EXPECT_EQ(walk.vertices_inside, vote.vertices_inside) << "case " << c;
+    EXPECT_EQ(walk.max_depth_m, vote.max_depth_m) << "case " << c;
+  }
+  EXPECT_GT(calc_surface_overlap(cases[0].first.V, cases[0].first.F, MeshQuery(cases[0].second)).vertices_inside, 0);
+  EXPECT_EQ(calc_surface_overlap(cases[2].first.V, cases[2].first.F, MeshQuery(cases[2].second)).vertices_inside,
+            cases[2].first.V.rows());
+  const OverlapInfo thin = calc_surface_overlap(cases[4].first.V, cases[4].first.F, MeshQuery(cases[4].second));
+  EXPECT_GT(thin.vertices_inside, 100);
+  EXPECT_LT(thin.vertices_inside, cases[4].first.V.rows() - 100);
 }
 
 }  // namespace

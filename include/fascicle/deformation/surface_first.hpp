@@ -203,5 +203,10 @@ struct OverlapInfo {
   double max_depth_m = 0.0;
 };
 OverlapInfo calc_surface_overlap(const Points3& V, const MeshQuery& other);
+// Same result for the closed surface (V, F), much cheaper: the winding number of `other` is
+// propagated along the edges of (V, F) from vertices outside other's bounding box (winding 0), one
+// short segment crossing count per vertex; a vertex reached only through a grazing segment, or
+// whose propagated winding is not 0 or 1, is decided by the full ray vote (MeshQuery::calc_is_inside).
+OverlapInfo calc_surface_overlap(const Points3& V, const Triangles& F, const MeshQuery& other);
 
 }  // namespace fascicle
