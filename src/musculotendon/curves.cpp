@@ -3,6 +3,8 @@
 // documented algorithm); De Groote et al. 2016 (Ann Biomed Eng 44:2922), appendix.
 #include "fascicle/musculotendon/curves.hpp"
 
+#include "curve_jets.hpp"
+
 #include "fascicle/core/error.hpp"
 
 #include <algorithm>
@@ -13,10 +15,12 @@
 namespace fascicle {
 
 // ============================================================================ Thelen 2003
+namespace {
+CurvePoint first_two(const CurveJet& j) { return {j.value, j.derivative}; }
+}  // namespace
+
 CurvePoint thelen_active_force_length(const ThelenCurveParameters& p, double l) {
-  const double d = l - 1.0;
-  const double v = std::exp(-d * d / p.KshapeActive);
-  return {v, -2.0 * d / p.KshapeActive * v};
+  return first_two(detail::thelen_active_jet(p, l));
 }
 
 ThelenCurveConstants make_thelen_constants(const ThelenCurveParameters& p) {
@@ -26,10 +30,7 @@ ThelenCurveConstants make_thelen_constants(const ThelenCurveParameters& p) {
 
 CurvePoint thelen_passive_force_length(const ThelenCurveParameters& p, const ThelenCurveConstants& c,
                                        double l) {
-  if (l <= 1.0) return {0.0, 0.0};
-  const double k = p.KshapePassive, e0 = p.FmaxMuscleStrain;
-  const double ex = std::exp(k * (l - 1.0) / e0), den = c.passive_den;
-  return {(ex - 1.0) / den, k / e0 * ex / den};
+  return first_two(detail::thelen_passive_jet(p, c, l));
 }
 
 CurvePoint thelen_passive_force_length(const ThelenCurveParameters& p, double l) {
@@ -56,21 +57,11 @@ double thelen_tendon_linear_stiffness(double e0) {
   return 0.67 / (e0 - thelen_tendon_toe_strain(e0));
 }
 
-namespace {
-constexpr double kThelenToeShape = 3.0;   // kToe
-constexpr double kThelenToeForce = 0.33;  // Ftoe
-}  // namespace
+using detail::kThelenToeForce;
+using detail::kThelenToeShape;
 
 CurvePoint thelen_tendon_force_length(const ThelenCurveConstants& k, double lt) {
-  const double x = lt - 1.0;
-  const double etoe = k.tendon_toe_strain, klin = k.tendon_linear_stiffness;
-  if (x > etoe) return {klin * (x - etoe) + kThelenToeForce, klin};
-  if (x > 0.0) {
-    const double c = kThelenToeForce / std::expm1(kThelenToeShape);
-    const double ex = std::exp(kThelenToeShape * x / etoe);
-    return {c * (ex - 1.0), c * kThelenToeShape / etoe * ex};
-  }
-  return {0.0, 0.0};
+  return first_two(detail::thelen_tendon_jet(k, lt));
 }
 
 CurvePoint thelen_tendon_force_length(const ThelenCurveParameters& p, double lt) {
@@ -87,7 +78,9 @@ double thelen_tendon_force_length_integral(const ThelenCurveConstants& k, double
   };
   if (x <= etoe) return toe(x);
   const double d = x - etoe;
-  return toe(etoe) + 0.5 * klin * d * d + kThelenToeForce * d;
+  // toe(etoe), with the constant expm1(kToe) folded at compile time.
+  const double toe_end = c * (etoe / kThelenToeShape * std::expm1(kThelenToeShape) - etoe);
+  return toe_end + 0.5 * klin * d * d + kThelenToeForce * d;
 }
 
 double thelen_tendon_force_length_integral(const ThelenCurveParameters& p, double lt) {
@@ -176,6 +169,12 @@ inline double poly5(const std::array<double, 6>& a, double u) {
 }
 inline double poly5_du(const std::array<double, 6>& a, double u) {
   return (((5.0 * a[5] * u + 4.0 * a[4]) * u + 3.0 * a[3]) * u + 2.0 * a[2]) * u + a[1];
+}
+inline double poly5_du2(const std::array<double, 6>& a, double u) {
+  return ((20.0 * a[5] * u + 12.0 * a[4]) * u + 6.0 * a[3]) * u + 2.0 * a[2];
+}
+inline double poly5_du3(const std::array<double, 6>& a, double u) {
+  return (60.0 * a[5] * u + 24.0 * a[4]) * u + 6.0 * a[3];
 }
 
 // x(u) − x and dx/du of a segment in the power form about the nearer end.
@@ -307,6 +306,18 @@ double SmoothSegmentedCurve::calc_inverse_estimate(double y) const {
   return inverse_x_[j] + s * (inverse_x_[j + 1] - inverse_x_[j]);
 }
 
+double SmoothSegmentedCurve::guess_u(const Fast& f, double x, double& lo, double& hi) const {
+  constexpr int N = kTableIntervals;
+  const double t = std::clamp((x - f.x0) * f.inv_dx, 0.0, static_cast<double>(N));
+  const int j = std::min(static_cast<int>(t), N - 1);
+  const double s = t - j;
+  const std::array<double, 4>& c = f.guess[j];
+  const double u = c[0] + s * (c[1] + s * (c[2] + s * c[3]));
+  lo = std::max(0.0, f.table_u[j] - 1e-12);
+  hi = std::min(1.0, f.table_u[j + 1] + 1e-12);
+  return std::clamp(u, lo, hi);
+}
+
 double SmoothSegmentedCurve::solve_u(const Fast& f, double x) const {
   constexpr int N = kTableIntervals;
   const double t = std::clamp((x - f.x0) * f.inv_dx, 0.0, static_cast<double>(N));
@@ -331,17 +342,56 @@ int SmoothSegmentedCurve::find_segment(double x) const {
   return n;
 }
 
-CurvePoint SmoothSegmentedCurve::calc(double x) const {
+CurvePoint SmoothSegmentedCurve::calc(double x) const { return first_two(calc_jet(x)); }
+
+CurveJet SmoothSegmentedCurve::calc_jet(double x) const {
   const int i = find_segment(x);
-  if (i < 0) return {fast_.front().y0 + dydx_left_ * (x - fast_.front().x0), dydx_left_};
+  if (i < 0) return {fast_.front().y0 + dydx_left_ * (x - fast_.front().x0), dydx_left_, 0.0};
   if (i >= static_cast<int>(fast_.size())) {
-    return {fast_.back().y5 + dydx_right_ * (x - fast_.back().x5), dydx_right_};
+    return {fast_.back().y5 + dydx_right_ * (x - fast_.back().x5), dydx_right_, 0.0};
   }
   const Fast& f = fast_[i];
-  const double u = solve_u(f, x);
-  if (u < 0.5) return {f.y0 + poly5(f.ay0, u), poly5_du(f.ay0, u) / poly5_du(f.ax0, u)};
-  const double w = 1.0 - u;
-  return {f.y5 + poly5(f.ay1, w), poly5_du(f.ay1, w) / poly5_du(f.ax1, w)};
+  double lo = 0.0, hi = 1.0;
+  double u = guess_u(f, x, lo, hi);
+  // x(u) − x, y(u) and their first three u-derivatives at u, in the power form about the
+  // nearer end (w = 1 − u flips the sign of odd derivatives).
+  const auto at = [&f, x](double v, double* X, double* Y) {
+    if (v < 0.5) {
+      X[0] = poly5(f.ax0, v) - (x - f.x0), X[1] = poly5_du(f.ax0, v);
+      X[2] = poly5_du2(f.ax0, v), X[3] = poly5_du3(f.ax0, v);
+      Y[0] = f.y0 + poly5(f.ay0, v), Y[1] = poly5_du(f.ay0, v);
+      Y[2] = poly5_du2(f.ay0, v), Y[3] = poly5_du3(f.ay0, v);
+    } else {
+      const double w = 1.0 - v;
+      X[0] = poly5(f.ax1, w) - (x - f.x5), X[1] = -poly5_du(f.ax1, w);
+      X[2] = poly5_du2(f.ax1, w), X[3] = -poly5_du3(f.ax1, w);
+      Y[0] = f.y5 + poly5(f.ay1, w), Y[1] = -poly5_du(f.ay1, w);
+      Y[2] = poly5_du2(f.ay1, w), Y[3] = -poly5_du3(f.ay1, w);
+    }
+  };
+  double X[4], Y[4];
+  at(u, X, Y);
+  double du = 0.0;
+  bool taylor = false;
+  if (X[1] > 0.0) {
+    // One Chebyshev step on x(u) = x from the tabulated guess (typically |δ| < 1e-9): the u
+    // error after it is O(δ³) (< 1e-20) and y, y', y'' follow from their Taylor expansions
+    // about the guess to third order, so no second evaluation is needed.
+    const double dn = -X[0] / X[1];
+    if (std::abs(dn) <= 1e-7) {
+      du = dn - 0.5 * X[2] / X[1] * dn * dn;
+      taylor = true;
+    }
+  }
+  if (!taylor) {
+    u = newton_u(f, x, u, lo, hi);
+    at(u, X, Y);
+  }
+  const double h = 0.5 * du;
+  const double yu = Y[1] + du * (Y[2] + h * Y[3]), xu = X[1] + du * (X[2] + h * X[3]);
+  const double yuu = Y[2] + du * Y[3], xuu = X[2] + du * X[3];
+  const double dydx = yu / xu;
+  return {Y[0] + du * (Y[1] + h * (Y[2] + du * Y[3] / 3.0)), dydx, (yuu - dydx * xuu) / (xu * xu)};
 }
 
 double SmoothSegmentedCurve::calc_integral(double x) const {
@@ -483,17 +533,9 @@ MillardCurves make_millard_curves(const MillardCurveParameters& p) {
 
 // ============================================================================ De Groote 2016
 namespace {
-struct Gauss {
-  double b1, b2, b3, b4;
-};
-constexpr Gauss kDeGrooteActive[3] = {{0.814483478343008, 1.055033428970575, 0.162384573599574,
-                                       0.063303448465465},
-                                      {0.433004984392647, 0.716775413397760, -0.029947116970696,
-                                       0.200356847296188},
-                                      {0.1, 1.0, 0.353553390593274, 0.0}};
-constexpr double kDeGrooteKPE = 4.0;
+using detail::kDeGrooteKPE;
 constexpr double kDeGrooteMinFiber = 0.2;
-constexpr double kC1 = 0.2, kC2 = 1.0, kC3 = 0.2;
+constexpr double kC1 = detail::kDeGrooteC1, kC2 = detail::kDeGrooteC2, kC3 = detail::kDeGrooteC3;
 constexpr double kD1 = -0.3211346127989808, kD2 = -8.149, kD3 = -0.374, kD4 = 0.8825327733249912;
 
 double degroote_kT(const DeGrooteCurveParameters& p) {
@@ -508,26 +550,12 @@ DeGrooteCurveConstants make_degroote_constants(const DeGrooteCurveParameters& p)
 }
 
 CurvePoint degroote_active_force_length(const DeGrooteCurveParameters& p, double l) {
-  const double s = 1.0 / p.active_force_width_scale;
-  const double x = 1.0 + (l - 1.0) * s;  // width scaling about l = 1
-  CurvePoint out;
-  for (const Gauss& g : kDeGrooteActive) {
-    const double den = g.b3 + g.b4 * x;
-    const double num = x - g.b2;
-    const double e = g.b1 * std::exp(-0.5 * num * num / (den * den));
-    out.value += e;
-    // d/dx of exp(-0.5 num²/den²) = -(num/den² - num² b4/den³)
-    out.derivative += e * (-(num / (den * den)) + num * num * g.b4 / (den * den * den)) * s;
-  }
-  return out;
+  return first_two(detail::degroote_active_jet(p, l));
 }
 
 CurvePoint degroote_passive_force_length(const DeGrooteCurveParameters& p,
                                          const DeGrooteCurveConstants& k, double l) {
-  const double e0 = p.passive_fiber_strain_at_one_norm_force;
-  const double offset = k.passive_offset, den = k.passive_den;
-  const double ex = std::exp(kDeGrooteKPE * (l - 1.0) / e0);
-  return {(ex - offset) / den, kDeGrooteKPE / e0 * ex / den};
+  return first_two(detail::degroote_passive_jet(p, k, l));
 }
 
 CurvePoint degroote_passive_force_length(const DeGrooteCurveParameters& p, double l) {
@@ -549,9 +577,7 @@ double degroote_passive_force_length_integral(const DeGrooteCurveParameters& p, 
 }
 
 CurvePoint degroote_tendon_force_length(const DeGrooteCurveConstants& k, double lt) {
-  const double kT = k.tendon_kT;
-  const double e = kC1 * std::exp(kT * (lt - kC2));
-  return {e - kC3, kT * e};
+  return first_two(detail::degroote_tendon_jet(k, lt));
 }
 
 CurvePoint degroote_tendon_force_length(const DeGrooteCurveParameters& p, double lt) {

@@ -6,6 +6,8 @@
 
 #include "fascicle/core/error.hpp"
 
+#include "curve_jets.hpp"
+
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -218,6 +220,39 @@ struct KnownCurves {
   double fal, fpe, ft;
 };
 
+// The three length-dependent curves with their first and second derivatives at normalised fibre
+// length l and normalised tendon length t (one switch, inlined curve kernels); the tendon curve
+// is left zero when `tendon` is false.
+struct LengthJets {
+  CurveJet fal, fpe, ft;
+};
+inline LengthJets calc_length_jets(const Musculotendon& m, double l, double t, bool tendon) {
+  switch (m.params.model) {
+    case MuscleModel::thelen2003:
+      return {detail::thelen_active_jet(m.params.thelen, l),
+              detail::thelen_passive_jet(m.params.thelen, m.thelen_constants, l),
+              tendon ? detail::thelen_tendon_jet(m.thelen_constants, t) : CurveJet{}};
+    case MuscleModel::millard2012:
+      return {m.millard.active_force_length.calc_jet(l), m.millard.passive_force_length.calc_jet(l),
+              tendon ? m.millard.tendon_force_length.calc_jet(t) : CurveJet{}};
+    case MuscleModel::degroote2016:
+      return {detail::degroote_active_jet(m.params.degroote, l),
+              detail::degroote_passive_jet(m.params.degroote, m.degroote_constants, l),
+              tendon ? detail::degroote_tendon_jet(m.degroote_constants, t) : CurveJet{}};
+  }
+  return {};
+}
+
+// True when a curve is not twice differentiable between the two states (Thelen only: the passive
+// curve starts at l = 1, the tendon toe at lT = lTs and its linear part at lT = lTs (1 + ε_toe);
+// Millard's quintic-Bézier curves are C² and De Groote's are smooth).
+inline bool crosses_kink(const Musculotendon& m, double l_a, double l_b, double t_a, double t_b) {
+  if (m.params.model != MuscleModel::thelen2003) return false;
+  const auto between = [](double k, double a, double b) { return (a - k) * (b - k) <= 0.0; };
+  const double t_lin = 1.0 + m.thelen_constants.tendon_toe_strain;
+  return between(1.0, l_a, l_b) || between(1.0, t_a, t_b) || between(t_lin, t_a, t_b);
+}
+
 // Fills the outputs for a fully known kinematic state.
 void fill_outputs(const Musculotendon& m, double a, const Geometry& g, double vM, double lMT,
                   double vMT, bool rigid, MuscleOutputs& o, const KnownCurves* known = nullptr,
@@ -329,27 +364,37 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
   const bool moving = std::abs(vMT) > 1e-14;
   const double vscale = l0 * p.max_contraction_velocity;
 
-  // Normalised force error r = FmAT/F0 − FT/F0 and dr/dlM at fixed normalised fibre velocity vN.
+  // Normalised force error r = FmAT/F0 − FT/F0 and its first two derivatives with respect to
+  // lM at fixed normalised fibre velocity vN (with cos α' = h²/(lM³ cos α),
+  // cos α'' = −3 cos α'/lM − cos α'²/cos α and dlT/dlM = −1/cos α).
   struct Eval {
-    double r, dr, dFmAT_dlM, dFt_dlT;
+    double r, dr, d2r, dFmAT_dlM, dFt_dlT;
     Geometry g;
-    KnownCurves curves;
-    KnownCurves slopes;  // d/dl of fal, fpe and d/d(lT/lTs) of f_T
+    LengthJets jets;  // fal, fpe in l = lM/l0 and f_T in lT/lTs
   };
-  // fv depends on the pass's fixed velocity only: computed once per pass, passed in.
-  const auto evaluate = [&](double lM, double vN, double fv) {
-    const Geometry g = fiber_geometry(m, lM, lMT);
-    const double l = lM / l0;
-    const CurvePoint fal = calc_active_force_length(m, l);
-    const CurvePoint fpe = calc_passive_force_length(m, l);
-    const CurvePoint ft = calc_tendon_force_length(m, g.lT / lTs);
-    const double fm = a * fal.value * fv + fpe.value + beta * vN;
-    const double dfm = (a * fv * fal.derivative + fpe.derivative) / l0;
-    const double dcos = (g.cos_phi > 0.0) ? h * h / (lM * lM * lM * g.cos_phi) : 0.0;
-    const double dFmAT = dfm * g.cos_phi + fm * dcos;
-    const double dFt_dlT = ft.derivative / lTs;
-    return Eval{fm * g.cos_phi - ft.value, dFmAT + dFt_dlT / g.cos_phi, dFmAT, dFt_dlT, g,
-                {fal.value, fpe.value, ft.value}, {fal.derivative, fpe.derivative, ft.derivative}};
+  // fv depends on the pass's fixed velocity only: computed once per pass, passed in. Written
+  // into `e` (no copies of the jets); reciprocals keep divisions off the Newton chain.
+  // `tendon` false: the slack-end evaluation, where f_T and its derivatives are taken as zero.
+  const double inv_l0 = 1.0 / l0, inv_lTs = 1.0 / lTs;
+  const auto evaluate = [&](Eval& e, double lM, double vN, double fv, bool tendon) {
+    const double inv_lM = 1.0 / lM;
+    const double s = h * inv_lM;
+    const double c = std::sqrt(std::max(0.0, 1.0 - s * s));
+    e.g = {lM, c, s, lMT - lM * c};
+    e.jets = calc_length_jets(m, lM * inv_l0, e.g.lT * inv_lTs, tendon);
+    const LengthJets& j = e.jets;
+    const double inv_c = 1.0 / c;
+    const double fm = a * j.fal.value * fv + j.fpe.value + beta * vN;
+    const double dfm = (a * fv * j.fal.derivative + j.fpe.derivative) * inv_l0;
+    const double d2fm = (a * fv * j.fal.second_derivative + j.fpe.second_derivative) * inv_l0 * inv_l0;
+    const double dcos = (c > 0.0) ? s * s * inv_lM * inv_c : 0.0;  // h²/(lM³ cos α)
+    const double d2cos = (c > 0.0) ? -dcos * (3.0 * inv_lM + dcos * inv_c) : 0.0;
+    e.dFmAT_dlM = dfm * c + fm * dcos;
+    e.dFt_dlT = j.ft.derivative * inv_lTs;
+    e.r = fm * c - j.ft.value;
+    e.dr = e.dFmAT_dlM + e.dFt_dlT * inv_c;
+    e.d2r = d2fm * c + 2.0 * dfm * dcos + fm * d2cos -
+            (j.ft.second_derivative * inv_lTs * inv_lTs + e.dFt_dlT * dcos) * inv_c * inv_c;
   };
 
   // Bracket: [minimum fibre length, fibre length at which the tendon is exactly slack].
@@ -381,33 +426,58 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
     double lo = lo0, hi = hi0;
     bool lo_checked = false;
     const double fv = calc_force_velocity(m, a, vN).value;
-    last = evaluate(hi, vN, fv);
+    evaluate(last, hi, vN, fv, false);
+    if (last.r <= 0.0) evaluate(last, hi, vN, fv, true);  // slack: the tendon curve at lT = lTs
     if (last.r <= 0.0) {
       lM = hi;
     } else {
-      if (outer == 0) start = calc_equilibrium_start(m, last.r + last.curves.ft, last.dFmAT_dlM,
+      if (outer == 0) start = calc_equilibrium_start(m, last.r + last.jets.ft.value, last.dFmAT_dlM,
                                                      last.g.cos_phi, lMT);
       double x = start;  // every pass from the same start (keeps the previous passes' results)
       if (!(x > lo && x < hi)) x = 0.5 * (lo + hi);
       bool converged = false;
+      // Moves the solution from x to `to` without a confirming evaluation: the curve values
+      // follow from their second-order Taylor expansions (error O(δ³), ≈ 1e-18 relative for the
+      // steps allowed below); refused when a Thelen curve has a kink in between.
+      const auto advance_to = [&](double to) {
+        const Geometry g = fiber_geometry(m, to, lMT);
+        const double dl = (to - x) / l0, dt = (g.lT - last.g.lT) / lTs;
+        const double l_x = x / l0, t_x = last.g.lT / lTs;
+        if (crosses_kink(m, l_x, l_x + dl, t_x, t_x + dt)) return false;
+        const auto taylor = [](CurveJet& c, double d) {
+          c.value += d * (c.derivative + 0.5 * d * c.second_derivative);
+        };
+        taylor(last.jets.fal, dl);
+        taylor(last.jets.fpe, dl);
+        taylor(last.jets.ft, dt);
+        last.g = g;
+        x = to;
+        return true;
+      };
       for (int it = 0; it < 200; ++it, ++total_iterations) {
-        last = evaluate(x, vN, fv);
+        evaluate(last, x, vN, fv, true);
         if (!std::isfinite(last.r)) fail_numerical(m, "non-finite force error in equilibrium");
-        if (std::abs(last.r) <= 1e-13) { converged = true; break; }
+        const bool newton_ok = last.dr > 0.0 && std::isfinite(last.dr);
+        const double dn = newton_ok ? -last.r / last.dr : 0.0;
+        // Chebyshev's third-order step δ = δN − (r''/2r') δN² (Newton's when the correction is
+        // not small against δN, e.g. far away or across a kink of a Thelen curve).
+        const double q = newton_ok ? 0.5 * last.d2r / last.dr : 0.0;
+        const double step = (std::abs(q * dn) < 0.25) ? dn - q * dn * dn : dn;
+        // A final step is taken without a confirming evaluation when its error,
+        // O(δN³ (r''/r')²), is below 1e-17 l0.
+        const bool final_step = !moving && newton_ok && std::abs(dn) <= 1e-6 * l0 &&
+                                q * q * std::abs(dn * dn * dn) <= 1e-17 * l0;
+        if (std::abs(last.r) <= 1e-13) {
+          // Converged on the residual; where the slope is small that still leaves a length
+          // error r/r', removed by one last step when it is safe.
+          if (final_step) advance_to(x + step);
+          converged = true;
+          break;
+        }
         if (last.r < 0.0) { lo = x; lo_checked = true; } else { hi = x; }
         if (hi - lo <= 1e-15 * hi) { converged = true; break; }
-        double next = (last.dr > 0.0 && std::isfinite(last.dr)) ? x - last.r / last.dr : -1.0;
-        if (!moving && next > lo && next < hi && std::abs(next - x) <= 1e-9 * l0) {
-          // Final Newton step without a confirming evaluation: after a step δ ≤ 1e-9 l0 the
-          // error is O(r''δ²) ≪ 1e-13 F0, and the curve values at the new length follow from
-          // their slopes to O(δ²) (≈ 1e-18 relative), so they are updated, not re-evaluated.
-          const Geometry g = fiber_geometry(m, next, lMT);
-          const double dl = (next - x) / l0, dt = (g.lT - last.g.lT) / lTs;
-          last.curves.fal += last.slopes.fal * dl;
-          last.curves.fpe += last.slopes.fpe * dl;
-          last.curves.ft += last.slopes.ft * dt;
-          last.g = g;
-          x = next;
+        double next = newton_ok ? x + step : -1.0;
+        if (final_step && next > lo && next < hi && advance_to(next)) {
           ++total_iterations;
           converged = true;
           break;
@@ -416,7 +486,8 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
           // Newton (or bisection) needs the lower end: is the fibre stronger than the tendon
           // even at the minimum fibre length?
           lo_checked = true;
-          const Eval elo = evaluate(lo0, vN, fv);
+          Eval elo;
+          evaluate(elo, lo0, vN, fv, true);
           if (elo.r >= 0.0) {
             last = elo;
             at_lower = true;
@@ -449,7 +520,8 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
   // fixed point may not settle; the outputs always use the velocity the length was solved with.
   double vM = vN_solved * vscale;
   if (at_lower && vM < 0.0) vM = 0.0;
-  fill_outputs(m, a, last.g, vM, lMT, vMT, false, o, &last.curves, options.energies);
+  const KnownCurves known{last.jets.fal.value, last.jets.fpe.value, last.jets.ft.value};
+  fill_outputs(m, a, last.g, vM, lMT, vMT, false, o, &known, options.energies);
   o.fiber_at_lower_bound = at_lower;
   o.iterations = total_iterations;
   return o;

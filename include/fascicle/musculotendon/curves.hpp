@@ -16,6 +16,12 @@ struct CurvePoint {
   double value = 0.0;
   double derivative = 0.0;
 };
+// A curve sample with its second derivative d²y/dx² too (for second-order solvers).
+struct CurveJet {
+  double value = 0.0;
+  double derivative = 0.0;
+  double second_derivative = 0.0;
+};
 
 // ---------------------------------------------------------------- Thelen 2003 (OpenSim form)
 // Active force-length: exp(-(l-1)²/KshapeActive).
@@ -73,6 +79,8 @@ class SmoothSegmentedCurve {
   SmoothSegmentedCurve(std::vector<Segment> segments, double dydx_left, double dydx_right);
 
   CurvePoint calc(double x) const;
+  // y, dy/dx and d²y/dx² (zero on the linear extrapolations) in one solve for u.
+  CurveJet calc_jet(double x) const;
   double calc_value(double x) const { return calc(x).value; }
   // ∫_{x_begin}^{x} y dx (exact: the degree-9 polynomial y(u)·x'(u) integrated in closed form).
   double calc_integral(double x) const;
@@ -101,6 +109,7 @@ class SmoothSegmentedCurve {
     std::array<std::array<double, 4>, kTableIntervals> guess{};
   };
   double solve_u(const Fast& f, double x) const;
+  double guess_u(const Fast& f, double x, double& lo, double& hi) const;
   int find_segment(double x) const;  // -1 left of the curve, size() right of it
 
   std::vector<Segment> segments_;
