@@ -115,6 +115,8 @@ class SmoothSegmentedCurve {
   std::vector<Segment> segments_;
   std::vector<Fast> fast_;
   std::vector<double> integral_at_start_;  // ∫ from x_begin to each segment's start
+  std::vector<double> segment_ends_;       // x at each segment's end (contiguous, for lookup)
+  double x_begin_ = 0.0;
   std::vector<double> inverse_x_;           // x at equally spaced y (monotone curves only)
   double inverse_y0_ = 0.0, inverse_inv_dy_ = 0.0;
   double dydx_left_ = 0.0, dydx_right_ = 0.0;
