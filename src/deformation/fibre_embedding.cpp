@@ -7,12 +7,91 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numeric>
 
 namespace fascicle {
 
-VecX calc_mean_value_coordinates(const TriMesh& mesh, const Vec3& x) {
+namespace {
+
+// Undirected edges of a triangle mesh and, per triangle corner i, the edge opposite it with its
+// orientation (+1 when stored as (F(t,i+1), F(t,i+2)), -1 when stored reversed).
+struct EdgeTable {
+  std::vector<std::array<int, 2>> edges;
+  std::vector<std::array<int, 3>> opposite;  // per triangle: edge index * 2 + (reversed ? 1 : 0)
+};
+
+EdgeTable make_edge_table(const Triangles& F) {
+  EdgeTable t;
+  std::vector<std::array<int, 3>> half;  // (min vertex, max vertex, triangle * 3 + corner)
+  half.reserve(static_cast<std::size_t>(F.rows()) * 3);
+  for (int f = 0; f < F.rows(); ++f)
+    for (int i = 0; i < 3; ++i) {
+      const int a = F(f, (i + 1) % 3), b = F(f, (i + 2) % 3);
+      half.push_back({std::min(a, b), std::max(a, b), f * 3 + i});
+    }
+  std::sort(half.begin(), half.end());
+  t.opposite.resize(static_cast<std::size_t>(F.rows()));
+  for (std::size_t k = 0; k < half.size(); ++k) {
+    if (k == 0 || half[k][0] != half[k - 1][0] || half[k][1] != half[k - 1][1])
+      t.edges.push_back({half[k][0], half[k][1]});
+    const int f = half[k][2] / 3, i = half[k][2] % 3;
+    const bool reversed = F(f, (i + 1) % 3) != half[k][0];
+    t.opposite[f][i] = static_cast<int>(t.edges.size() - 1) * 2 + (reversed ? 1 : 0);
+  }
+  return t;
+}
+
+// The contribution of triangle f to the (unnormalised) mean-value weights w of the point x, with
+// d_j = |v_j - x| and u_j = (v_j - x) / d_j: the robust per-triangle formula of Ju, Schaefer and
+// Warren (2005, section 3.3). Returns true when x lies on the triangle (w then holds its
+// barycentric coordinates, normalised, and nothing else).
+bool add_triangle_weights(const Triangles& F, Eigen::Index f, const VecX& d, const Points3& u, VecX& w) {
+  const int id[3] = {F(f, 0), F(f, 1), F(f, 2)};
+  // θ_i = 2 asin(l_i / 2) for the chord l_i between the unit vectors; then exactly
+  // sin θ_i = l_i sqrt(1 - l_i²/4) and cos θ_i = 1 - l_i²/2.
+  double theta[3], sin_theta[3], cos_theta[3], c[3], s[3];
+  for (int i = 0; i < 3; ++i) {
+    const double l = std::min((u.row(id[(i + 1) % 3]) - u.row(id[(i + 2) % 3])).norm(), 2.0);
+    theta[i] = 2.0 * std::asin(0.5 * l);
+    sin_theta[i] = l * std::sqrt(std::max(0.0, 1.0 - 0.25 * l * l));
+    cos_theta[i] = 1.0 - 0.5 * l * l;
+  }
+  const double h = 0.5 * (theta[0] + theta[1] + theta[2]);
+  if (M_PI - h < 1e-10) {
+    // x lies on this triangle: barycentric coordinates from the angles
+    w.setZero();
+    for (int i = 0; i < 3; ++i) w[id[i]] = sin_theta[i] * d[id[(i + 2) % 3]] * d[id[(i + 1) % 3]];
+    w /= w.sum();
+    return true;
+  }
+  const double sin_h = std::sin(h), cos_h = std::cos(h);
+  Mat3 U;
+  U << u.row(id[0]), u.row(id[1]), u.row(id[2]);
+  const double sign = U.determinant() < 0.0 ? -1.0 : 1.0;
+  for (int i = 0; i < 3; ++i) {
+    const double sin_h_minus = sin_h * cos_theta[i] - cos_h * sin_theta[i];  // sin(h - θ_i)
+    c[i] = 2.0 * sin_h * sin_h_minus / (sin_theta[(i + 1) % 3] * sin_theta[(i + 2) % 3]) - 1.0;
+    s[i] = sign * std::sqrt(std::max(0.0, 1.0 - c[i] * c[i]));
+    if (std::abs(s[i]) <= 1e-10) return false;  // x in the triangle's plane, outside it: no contribution
+  }
+  for (int i = 0; i < 3; ++i) {
+    const int a = (i + 1) % 3, b = (i + 2) % 3;
+    w[id[i]] += (theta[i] - c[a] * theta[b] - c[b] * theta[a]) / (d[id[i]] * sin_theta[a] * s[b]);
+  }
+  return false;
+}
+
+// Mean-value coordinates of x (normalised). Most triangles use the closed form of Ju, Schaefer and
+// Warren (2005, section 3.2): with unit directions u_i from x to the corners, the mean vector of
+// the triangle's spherical image is m = 1/2 sum_i theta_i n_i (theta_i the arc opposite corner i,
+// n_i the unit normal u_{i+1} x u_{i+2} / |.| of the plane through x and the opposite edge) and the
+// corner weights are w_i = (n_i . m) / (d_i n_i . u_i). Arc and plane normal depend on the edge
+// only, so they are computed once per edge: half the asin of the per-triangle formula and no
+// sin/cos. Triangles seen nearly edge-on (|n_i . u_i| <= 1e-6) or nearly containing x use the
+// per-triangle formula (add_triangle_weights), which handles the in-plane and on-triangle cases.
+VecX calc_mean_value_coordinates(const TriMesh& mesh, const EdgeTable& table, const Vec3& x) {
   const Eigen::Index n = mesh.V.rows();
   const double scale = (mesh.V.colwise().maxCoeff() - mesh.V.colwise().minCoeff()).norm();
   const double eps = 1e-12 * scale;
@@ -28,50 +107,40 @@ VecX calc_mean_value_coordinates(const TriMesh& mesh, const Vec3& x) {
     }
     u.row(j) = v.transpose() / d[j];
   }
+  const std::size_t ne = table.edges.size();
+  std::vector<double> theta(ne);
+  std::vector<Vec3> normal(ne);
+  for (std::size_t e = 0; e < ne; ++e) {
+    const Vec3 ua = u.row(table.edges[e][0]).transpose(), ub = u.row(table.edges[e][1]).transpose();
+    theta[e] = 2.0 * std::asin(0.5 * std::min((ua - ub).norm(), 2.0));
+    const Vec3 c = ua.cross(ub);
+    const double cn = c.norm();
+    normal[e] = cn > 0.0 ? Vec3(c / cn) : Vec3::Zero();
+  }
   for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
-    const int id[3] = {mesh.F(f, 0), mesh.F(f, 1), mesh.F(f, 2)};
-    // θ_i = 2 asin(l_i / 2) for the chord l_i between the unit vectors; then exactly
-    // sin θ_i = l_i sqrt(1 - l_i²/4) and cos θ_i = 1 - l_i²/2, so a triangle costs three asin and
-    // one sin/cos of h instead of a dozen sines.
-    double theta[3], sin_theta[3], cos_theta[3], c[3], s[3];
+    const std::array<int, 3>& opp = table.opposite[static_cast<std::size_t>(f)];
+    double th[3], nu[3];
+    Vec3 ni[3];
+    bool edge_on = false;
     for (int i = 0; i < 3; ++i) {
-      const double l = std::min((u.row(id[(i + 1) % 3]) - u.row(id[(i + 2) % 3])).norm(), 2.0);
-      theta[i] = 2.0 * std::asin(0.5 * l);
-      sin_theta[i] = l * std::sqrt(std::max(0.0, 1.0 - 0.25 * l * l));
-      cos_theta[i] = 1.0 - 0.5 * l * l;
+      const auto e = static_cast<std::size_t>(opp[i] >> 1);
+      th[i] = theta[e];
+      ni[i] = (opp[i] & 1) ? Vec3(-normal[e]) : normal[e];
+      nu[i] = ni[i].dot(u.row(mesh.F(f, i)).transpose());
+      if (!(std::abs(nu[i]) > 1e-6)) edge_on = true;
     }
-    const double h = 0.5 * (theta[0] + theta[1] + theta[2]);
-    if (M_PI - h < 1e-10) {
-      // x lies on this triangle: barycentric coordinates from the angles
-      w.setZero();
-      for (int i = 0; i < 3; ++i)
-        w[id[i]] = sin_theta[i] * d[id[(i + 2) % 3]] * d[id[(i + 1) % 3]];
-      return w / w.sum();
+    if (edge_on || M_PI - 0.5 * (th[0] + th[1] + th[2]) < 1e-6) {
+      if (add_triangle_weights(mesh.F, f, d, u, w)) return w;  // x on this triangle
+      continue;
     }
-    const double sin_h = std::sin(h), cos_h = std::cos(h);
-    Mat3 U;
-    U << u.row(id[0]), u.row(id[1]), u.row(id[2]);
-    const double sign = U.determinant() < 0.0 ? -1.0 : 1.0;
-    bool coplanar = false;
-    for (int i = 0; i < 3; ++i) {
-      const double sin_h_minus = sin_h * cos_theta[i] - cos_h * sin_theta[i];  // sin(h - θ_i)
-      c[i] = 2.0 * sin_h * sin_h_minus / (sin_theta[(i + 1) % 3] * sin_theta[(i + 2) % 3]) - 1.0;
-      s[i] = sign * std::sqrt(std::max(0.0, 1.0 - c[i] * c[i]));
-      if (std::abs(s[i]) <= 1e-10) coplanar = true;
-    }
-    if (coplanar) continue;  // x in the triangle's plane, outside it: no contribution
-    for (int i = 0; i < 3; ++i) {
-      const int a = (i + 1) % 3, b = (i + 2) % 3;
-      w[id[i]] += (theta[i] - c[a] * theta[b] - c[b] * theta[a]) / (d[id[i]] * sin_theta[a] * s[b]);
-    }
+    const Vec3 m = 0.5 * (th[0] * ni[0] + th[1] * ni[1] + th[2] * ni[2]);
+    for (int i = 0; i < 3; ++i) w[mesh.F(f, i)] += ni[i].dot(m) / (d[mesh.F(f, i)] * nu[i]);
   }
   const double sum = w.sum();
   if (!(std::abs(sum) > 0.0) || !std::isfinite(sum))
     throw_numerical("mean-value coordinates undefined (point far outside or degenerate surface)");
   return w / sum;
 }
-
-namespace {
 
 // Keeps the k largest |w| and corrects them (minimum norm) so that sum w = 1 and sum w_j v_j = x.
 std::vector<std::pair<int, double>> truncate_affine(const TriMesh& mesh, const Vec3& x,
@@ -107,6 +176,10 @@ std::vector<std::pair<int, double>> truncate_affine(const TriMesh& mesh, const V
 
 }  // namespace
 
+VecX calc_mean_value_coordinates(const TriMesh& mesh, const Vec3& x) {
+  return calc_mean_value_coordinates(mesh, make_edge_table(mesh.F), x);
+}
+
 FibreEmbedding embed_fibres(const SurfaceBinding& binding, const std::vector<Points3>& fibres,
                             const FibreEmbeddingOptions& options) {
   const TriMesh& rest_surface = binding.rest;
@@ -119,8 +192,9 @@ FibreEmbedding embed_fibres(const SurfaceBinding& binding, const std::vector<Poi
     e.fibre_start.push_back(static_cast<int>(points.size()));
   }
   std::vector<std::vector<std::pair<int, double>>> rows(points.size());
+  const EdgeTable table = make_edge_table(rest_surface.F);
   parallel_for(points.size(), [&](std::size_t p) {
-    const VecX w = calc_mean_value_coordinates(rest_surface, points[p]);
+    const VecX w = calc_mean_value_coordinates(rest_surface, table, points[p]);
     rows[p] = truncate_affine(rest_surface, points[p], w, options.max_weights);
   });
   std::vector<Eigen::Triplet<double>> t;

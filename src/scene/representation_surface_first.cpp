@@ -91,7 +91,7 @@ class SurfaceFirst final : public MuscleRepresentation {
     return std::make_unique<Frame>(binding_, bones_);
   }
 
-  void calc_geometry(const Model& model, MuscleIndex, const State& state, RepresentationState* rs,
+  void calc_geometry(const Model& model, MuscleIndex mi, const State& state, RepresentationState* rs,
                      MuscleFrame& out) const override {
     auto* frame = dynamic_cast<Frame*>(rs);
     if (!frame) throw_internal("surface_first: the State was not made for this Model (make_state)");
@@ -101,6 +101,9 @@ class SurfaceFirst final : public MuscleRepresentation {
     for (BodyIndex b : bone_bodies_) input.bone_motions.push_back(calc_body_motion(model, state, b));
     out.surface = frame->solver.calc_frame(input);
     const SurfaceFrameInfo& info = frame->solver.get_info();
+    spdlog::debug("surface_first '{}' t = {:.3f} s: {} contacts, {} rounds, {} solves, {} factorisations so far",
+                  model.get_muscle(mi).name, state.time_s, info.active_contacts, info.contact_rounds,
+                  info.volume_iterations, info.factorisations);
     out.volume_m3 = info.volume_m3;
     out.relative_volume_change = info.volume_m3 / binding_.rest_volume_m3 - 1.0;
     out.max_bone_penetration_m = info.max_penetration_beyond_rest_m;
