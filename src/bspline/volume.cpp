@@ -7,6 +7,8 @@
 
 #include <Eigen/QR>
 
+#include <algorithm>
+#include <memory>
 #include <cmath>
 #include <numbers>
 
@@ -131,11 +133,174 @@ BoundaryVolumeIntegrator::BoundaryVolumeIntegrator(const BSplineSolid& lattice)
           ErrorContext{.object = lattice.name,
                        .suggestion = "use calc_volume (quadrature of det J) or clamp the knots"});
     }
+    Direction& D = dir_[d];
+    D.num_control = basis_[d].num_control;
+    D.width = basis_[d].degree + 1;
     for (const SpanPoint& sp : make_span_points(basis_[d])) {
-      points_[d].push_back({sp.weight, calc_basis(basis_[d], sp.t, 1)});
+      const BasisValues bv = calc_basis(basis_[d], sp.t, 1);
+      D.weight.push_back(sp.weight);
+      for (int r = 0; r < D.width; ++r) {
+        D.N0.push_back(bv.N[0][r]);
+        D.N1.push_back(bv.N[1][r]);
+        D.index.push_back(control_index(basis_[d], bv.first + r));
+      }
+    }
+    D.num_points = static_cast<int>(D.weight.size());
+    D.padded_points = (D.num_points + 1) & ~1;
+    const int Qp = D.padded_points;
+    D.dense0.assign(static_cast<std::size_t>(D.num_control) * Qp, 0.0);
+    D.dense1 = D.dense0;
+    D.dense_w = D.dense0;
+    D.band_lo.assign(D.num_control, Qp);
+    D.band_hi.assign(D.num_control, 0);
+    for (int q = 0; q < D.num_points; ++q)
+      for (int r = 0; r < D.width; ++r) {
+        const int i = D.index[q * D.width + r];
+        D.dense0[i * Qp + q] += D.N0[q * D.width + r];
+        D.dense1[i * Qp + q] += D.N1[q * D.width + r];
+        D.dense_w[i * Qp + q] += D.weight[q] * D.N0[q * D.width + r];
+        D.band_lo[i] = std::min(D.band_lo[i], q & ~1);
+        D.band_hi[i] = std::max(D.band_hi[i], (q & ~1) + 2);
+      }
+    for (int i = 0; i < D.num_control; ++i) D.band_hi[i] = std::max(D.band_hi[i], D.band_lo[i]);
+  }
+}
+
+namespace {
+
+// One boundary face of the sum-factorised integral (see BoundaryVolumeIntegrator), for a-widths
+// WA and b-widths WB (degree + 1) known at compile time. G[coordinate][b control][a control]:
+// the face's control points minus the reference point. The face term uses the divergence theorem
+// with the field (0, 0, z) (∇· = 1): V = Σ_faces ± ∫∫ z (x_a × x_b)_z da db, which needs z, x_a
+// and x_b but not x, y. With kGradient, dV/dQ = ± ∫∫ N n da db needs the whole normal
+// n = x_a × x_b. Returns the face integral; adds the gradient rows (times sign) into grad.
+template <bool kGradient, int WA, int WB, class Dir, class FaceIndex>
+double integrate_face(const Dir& A, const Dir& B, double* G, double* scratch, double sign,
+                      const FaceIndex& face_index, Points3* grad) {
+  using A2 = Eigen::Array2d;
+  const auto load = [](const double* p) { return A2(Eigen::Map<const A2>(p)); };
+  const int na = A.num_control, nb = B.num_control, Qa = A.num_points, Qb = B.num_points;
+  const int Qp = A.padded_points;  // a points padded to whole SIMD pairs (padding: zero weight)
+  // L0/L1[coordinate][b control][a point]: G contracted with the a values / a derivatives.
+  double* L0 = scratch;
+  double* L1 = L0 + 3 * nb * Qp;
+  double* T = L1 + 3 * nb * Qp;  // [coordinate][b control][a point] (gradient)
+  double* acc = T + 3 * nb * Qp;  // [a point]
+  double* wa = acc + Qp;          // [a point]
+  for (int qa = 0; qa < Qp; ++qa) wa[qa] = qa < Qa ? A.weight[qa] : 0.0;
+  // dense, band-limited: l[qa] = Σ_ia g[ia] N_ia(qa), in SIMD pairs of a points
+  std::fill(L0, L0 + 6 * nb * Qp, 0.0);
+  for (int q = 0; q < 3; ++q)
+    for (int jb = 0; jb < nb; ++jb) {
+      const double* g = G + (q * nb + jb) * na;
+      double* l0 = L0 + (q * nb + jb) * Qp;
+      double* l1 = L1 + (q * nb + jb) * Qp;
+      for (int ia = 0; ia < na; ++ia) {
+        const A2 v = A2::Constant(g[ia]);
+        const double* d0 = &A.dense0[ia * Qp];
+        const double* d1 = &A.dense1[ia * Qp];
+        for (int qa = A.band_lo[ia]; qa < A.band_hi[ia]; qa += 2) {
+          Eigen::Map<A2>(l0 + qa) += v * load(d0 + qa);
+          Eigen::Map<A2>(l1 + qa) += v * load(d1 + qa);
+        }
+      }
+    }
+  for (int qa = 0; qa < Qp; ++qa) acc[qa] = 0.0;
+  if constexpr (kGradient) std::fill(T, T + 3 * nb * Qp, 0.0);
+  const int stride_q = nb * Qp;  // between coordinates in L0/L1/T
+  // Sweep the b points; at each (a pair, b point): x_a, x_b, z, n = x_a × x_b, the volume term,
+  // and (gradient) T[q][jb][qa] += w_b N_b(jb) n_q: the b half of ∫∫ N_I n.
+  for (int qb = 0; qb < Qb; ++qb) {
+    const double w = B.weight[qb];
+    A2 n0[WB], n1[WB], wn0[WB];
+    const double* row0[WB];
+    const double* row1[WB];
+    double* rowT[WB];
+    for (int r = 0; r < WB; ++r) {
+      n0[r] = A2::Constant(B.N0[qb * WB + r]);
+      n1[r] = A2::Constant(B.N1[qb * WB + r]);
+      wn0[r] = A2::Constant(w * B.N0[qb * WB + r]);
+      row0[r] = L0 + B.index[qb * WB + r] * Qp;
+      row1[r] = L1 + B.index[qb * WB + r] * Qp;
+      rowT[r] = T + B.index[qb * WB + r] * Qp;
+    }
+    for (int qa = 0; qa < Qp; qa += 2) {
+      A2 xa[3] = {A2::Zero(), A2::Zero(), A2::Zero()};
+      A2 xb[3] = {A2::Zero(), A2::Zero(), A2::Zero()};
+      A2 z = A2::Zero();
+      for (int r = 0; r < WB; ++r) {
+        for (int q = 0; q < 3; ++q) {
+          xa[q] += n0[r] * load(row1[r] + q * stride_q + qa);
+          xb[q] += n1[r] * load(row0[r] + q * stride_q + qa);
+        }
+        z += n0[r] * load(row0[r] + 2 * stride_q + qa);
+      }
+      const A2 cz = xa[0] * xb[1] - xa[1] * xb[0];
+      Eigen::Map<A2>(acc + qa) += (w * load(wa + qa)) * (z * cz);
+      if constexpr (kGradient) {
+        const A2 nrm[3] = {xa[1] * xb[2] - xa[2] * xb[1], xa[2] * xb[0] - xa[0] * xb[2], cz};
+        for (int r = 0; r < WB; ++r)
+          for (int q = 0; q < 3; ++q) Eigen::Map<A2>(rowT[r] + q * stride_q + qa) += wn0[r] * nrm[q];
+      }
+    }
+  }
+  double face = 0.0;
+  for (int qa = 0; qa < Qa; ++qa) face += acc[qa];
+  if constexpr (kGradient) {
+    // dV/dQ(ia, jb) = sign Σ_qa w_a N_a(ia) T[jb][qa], gathered on the face grid (G's storage),
+    // then added to the solid's rows.
+    for (int q = 0; q < 3; ++q)
+      for (int jb = 0; jb < nb; ++jb) {
+        const double* t = T + (q * nb + jb) * Qp;
+        double* gg = G + (q * nb + jb) * na;
+        for (int ia = 0; ia < na; ++ia) {
+          const double* dw = &A.dense_w[ia * Qp];
+          A2 sum = A2::Zero();
+          for (int qa = A.band_lo[ia]; qa < A.band_hi[ia]; qa += 2) sum += load(dw + qa) * load(t + qa);
+          gg[ia] = sum.sum();
+        }
+      }
+    for (int jb = 0; jb < nb; ++jb)
+      for (int ia = 0; ia < na; ++ia) {
+        const int row = face_index(ia, jb);
+        for (int q = 0; q < 3; ++q) (*grad)(row, q) += sign * G[(q * nb + jb) * na + ia];
+      }
+  }
+  return face;
+}
+
+// Widths 2..4 (degrees 1..3) get compiled kernels; the rest the generic ones up to
+// kMaxBSplineDegree (all supported degrees are covered, so this never fails).
+template <bool kGradient, int WA, class Dir, class FaceIndex>
+double dispatch_b(const Dir& A, const Dir& B, double* G, double* scratch, double sign,
+                  const FaceIndex& fi, Points3* grad) {
+  if constexpr (WA > kMaxBSplineDegree + 1) {
+    throw_internal("B-spline degree above the supported maximum");
+  } else {
+    switch (B.width) {
+#define FASCICLE_WB(n) \
+  case n: return integrate_face<kGradient, WA, n>(A, B, G, scratch, sign, fi, grad);
+      FASCICLE_WB(1) FASCICLE_WB(2) FASCICLE_WB(3) FASCICLE_WB(4) FASCICLE_WB(5) FASCICLE_WB(6)
+      FASCICLE_WB(7) FASCICLE_WB(8)
+#undef FASCICLE_WB
+      default: throw_internal("B-spline degree above the supported maximum");
     }
   }
 }
+
+template <bool kGradient, class Dir, class FaceIndex>
+double dispatch_face(const Dir& A, const Dir& B, double* G, double* scratch, double sign,
+                     const FaceIndex& fi, Points3* grad) {
+  switch (A.width) {
+#define FASCICLE_WA(n) case n: return dispatch_b<kGradient, n>(A, B, G, scratch, sign, fi, grad);
+    FASCICLE_WA(1) FASCICLE_WA(2) FASCICLE_WA(3) FASCICLE_WA(4) FASCICLE_WA(5) FASCICLE_WA(6)
+    FASCICLE_WA(7) FASCICLE_WA(8)
+#undef FASCICLE_WA
+    default: throw_internal("B-spline degree above the supported maximum");
+  }
+}
+
+}  // namespace
 
 template <bool kGradient>
 double BoundaryVolumeIntegrator::integrate(const Points3& P, Points3* gradient) const {
@@ -147,15 +312,27 @@ double BoundaryVolumeIntegrator::integrate(const Points3& P, Points3* gradient) 
   // Integrate about a boundary control point (index 0 lies on a face of every non-periodic
   // direction), so results do not lose digits far from the origin and do not depend on interior
   // control points even in rounding.
-  const Vec3 c0 = P.row(0).transpose();
+  const double c0[3] = {P(0, 0), P(0, 1), P(0, 2)};
   const auto index = [&](int i, int j, int k) { return i + n[0] * (j + n[1] * k); };
+  // scratch, sized for the largest face: G, L0, L1, acc, normals
+  std::size_t need = 0;
+  for (int c = 0; c < 3; ++c) {
+    const Direction& A = dir_[(c + 1) % 3];
+    const Direction& B = dir_[(c + 2) % 3];
+    const std::size_t g = 3 * static_cast<std::size_t>(A.num_control) * B.num_control;
+    const std::size_t qp = A.num_points + 1;  // padded to even
+    const std::size_t l = 3 * static_cast<std::size_t>(B.num_control) * qp;
+    need = std::max(need, g + 3 * l + 2 * qp);
+  }
+  const std::unique_ptr<double[]> scratch(new double[need]);  // uninitialised: every use writes first
   double volume = 0.0;
-  std::vector<Vec3> R0, R1, T;
   for (int c = 0; c < 3; ++c) {
     if (basis_[c].periodic) continue;
     const int a = (c + 1) % 3, b = (c + 2) % 3;
-    const BSplineBasis& Ba = basis_[a];
-    const BSplineBasis& Bb = basis_[b];
+    const Direction& A = dir_[a];
+    const Direction& B = dir_[b];
+    const int na = A.num_control, nb = B.num_control;
+    double* G = scratch.get();  // [q][jb][ia]
     for (int side = 0; side < 2; ++side) {
       const int ic = side == 0 ? 0 : n[c] - 1;
       const double sign = side == 0 ? -1.0 : 1.0;
@@ -167,55 +344,17 @@ double BoundaryVolumeIntegrator::integrate(const Points3& P, Points3* gradient) 
         ijk[b] = ib;
         return index(ijk[0], ijk[1], ijk[2]);
       };
-      R0.assign(n[b], Vec3::Zero());
-      R1.assign(n[b], Vec3::Zero());
-      double face = 0.0;
-      for (const QuadPoint& qa : points_[a]) {
-        // R0_j = sum_i Na_i (Q_ij - c0), R1_j = sum_i Na'_i (Q_ij - c0)
-        for (int jb = 0; jb < n[b]; ++jb) {
-          Vec3 r0 = Vec3::Zero(), r1 = Vec3::Zero();
-          for (int ra = 0; ra <= Ba.degree; ++ra) {
-            const Vec3 q = P.row(face_index(control_index(Ba, qa.basis.first + ra), jb))
-                               .transpose() - c0;
-            r0 += qa.basis.N[0][ra] * q;
-            r1 += qa.basis.N[1][ra] * q;
-          }
-          R0[jb] = r0;
-          R1[jb] = r1;
+      for (int jb = 0; jb < nb; ++jb)
+        for (int ia = 0; ia < na; ++ia) {
+          const int row = face_index(ia, jb);
+          for (int q = 0; q < 3; ++q) G[(q * nb + jb) * na + ia] = P(row, q) - c0[q];
         }
-        if constexpr (kGradient) T.assign(n[b], Vec3::Zero());
-        double line = 0.0;
-        for (const QuadPoint& qb : points_[b]) {
-          Vec3 x = Vec3::Zero(), xa = Vec3::Zero(), xb = Vec3::Zero();
-          for (int rb = 0; rb <= Bb.degree; ++rb) {
-            const int jb = control_index(Bb, qb.basis.first + rb);
-            x += qb.basis.N[0][rb] * R0[jb];
-            xa += qb.basis.N[0][rb] * R1[jb];
-            xb += qb.basis.N[1][rb] * R0[jb];
-          }
-          const Vec3 nrm = xa.cross(xb);
-          line += qb.weight * x.dot(nrm);
-          if constexpr (kGradient) {
-            for (int rb = 0; rb <= Bb.degree; ++rb) {
-              T[control_index(Bb, qb.basis.first + rb)] += (qb.weight * qb.basis.N[0][rb]) * nrm;
-            }
-          }
-        }
-        face += qa.weight * line;
-        if constexpr (kGradient) {
-          for (int ra = 0; ra <= Ba.degree; ++ra) {
-            const int ia = control_index(Ba, qa.basis.first + ra);
-            const double f = sign * qa.weight * qa.basis.N[0][ra];
-            for (int jb = 0; jb < n[b]; ++jb) {
-              gradient->row(face_index(ia, jb)) += f * T[jb].transpose();
-            }
-          }
-        }
-      }
+      const double face = dispatch_face<kGradient>(A, B, G, G + 3 * na * nb, sign, face_index,
+                                                   gradient);
       volume += sign * face;
     }
   }
-  return volume / 3.0;
+  return volume;
 }
 
 VolumeAndGradient BoundaryVolumeIntegrator::calc(const Points3& P) const {

@@ -47,8 +47,10 @@ double calc_boundary_volume(const BSplineSolid& solid);
 VolumeAndGradient calc_boundary_volume_and_gradient(const BSplineSolid& solid);
 
 // The reusable form of calc_boundary_volume_and_gradient: basis values at the quadrature points
-// are computed once for a lattice; calc() then only touches control points (sum factorisation
-// face by face).
+// are computed once for a lattice; calc() then only touches control points. Each face is a
+// tensor-product sum factorisation: the face's control points are contracted along one direction
+// onto its quadrature points, then the other direction is swept with the first one's quadrature
+// points as the contiguous (SIMD) index. Thread-safe (const; scratch memory is per call).
 class BoundaryVolumeIntegrator {
  public:
   explicit BoundaryVolumeIntegrator(const BSplineSolid& lattice);
@@ -57,14 +59,24 @@ class BoundaryVolumeIntegrator {
   double calc_volume(const Points3& P) const;
 
  private:
-  struct QuadPoint {
-    double weight;
-    BasisValues basis;
+  // Quadrature of one parametric direction: per point, its weight and the degree + 1 non-zero
+  // basis values, derivatives and control indices (periodic indices already wrapped).
+  struct Direction {
+    int num_control = 0, num_points = 0, width = 0;  // width = degree + 1
+    std::vector<double> weight;       // num_points
+    std::vector<double> N0, N1;       // num_points x width
+    std::vector<int> index;           // num_points x width
+    // The same values densely, control point major, points padded to an even count (zeros):
+    // dense0/dense1/dense_w[i * padded_points + q] = N_i(t_q), N_i'(t_q), w_q N_i(t_q); and the
+    // even-aligned range [band_lo[i], band_hi[i]) of points where N_i is non-zero.
+    int padded_points = 0;
+    std::vector<double> dense0, dense1, dense_w;
+    std::vector<int> band_lo, band_hi;
   };
   template <bool kGradient>
   double integrate(const Points3& P, Points3* gradient) const;
   std::array<BSplineBasis, 3> basis_;
-  std::array<std::vector<QuadPoint>, 3> points_;
+  std::array<Direction, 3> dir_;
 };
 
 // Gradient with respect to spatial points x_s = x(U_s) instead of control points: when the
