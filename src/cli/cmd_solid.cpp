@@ -143,7 +143,7 @@ void run_simulate(const SimulateArgs& a) {
   std::shared_ptr<const SolidDynamicsModel> released;
   if (a.release >= 0.0) {
     SolidDynamicsSpec rs = spec;
-    std::erase_if(rs.attachments, [](const AttachmentSpec& x) { return x.name == "insertion"; });
+    std::erase_if(rs.attachments, [](const SolidAttachmentSpec& x) { return x.name == "insertion"; });
     released = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(rest, rs));
   }
 

@@ -239,6 +239,14 @@ SolidDynamicsModel compile_solid_dynamics(const BSplineSolid& rest, const SolidD
       }
       m.contact_samples.push_back(std::move(cs));
     }
+    for (std::size_t b = 0; b < spec.contact_bones.size(); ++b) {
+      std::vector<char> exempt(m.contact_samples.size(), 0);
+      if (spec.contact_bones[b].exempt_rest_contact) {
+        for (std::size_t s = 0; s < exempt.size(); ++s)
+          exempt[s] = m.bone_queries[b]->calc_is_inside(Vec3(t.mesh.V.row(static_cast<Eigen::Index>(s)).transpose())) ? 1 : 0;
+      }
+      m.bone_exempt.push_back(std::move(exempt));
+    }
     double k = 0.0;
     for (const auto& c : spec.contact_planes) k = std::max(k, c.stiffness_N_m);
     if (k <= 0.0) {

@@ -40,7 +40,7 @@ enum class VolumeMethod {
 enum class Integrator { symplectic_euler, backward_euler, quasi_static };
 
 // Control points moved rigidly with one bone: P_I = X_now_rest[body] P_rest_I.
-struct AttachmentSpec {
+struct SolidAttachmentSpec {
   std::string name;
   int body = 0;                  // index into StepInputs::X_now_rest (−1: fixed in the world)
   std::vector<int> control_points;
@@ -63,6 +63,9 @@ struct BoneContactSpec {
   std::string name;
   int body = -1;  // moves with X_now_rest[body]; −1: fixed
   TriMesh mesh_rest;
+  // true: boundary samples already inside this mesh in the rest configuration are never pushed
+  // (a muscle bound in a pose where it touches or overlaps the bone, e.g. at an attachment).
+  bool exempt_rest_contact = false;
 };
 
 struct SolidDynamicsSpec {
@@ -102,7 +105,7 @@ struct SolidDynamicsSpec {
   double max_fibre_strain_rate_1_s = 10.0;  // v_max in optimal lengths per second
 
   int quadrature_points_per_span = 0;  // 0: degree + 1 per direction
-  std::vector<AttachmentSpec> attachments;
+  std::vector<SolidAttachmentSpec> attachments;
   std::vector<ContactPlaneSpec> contact_planes;
   std::vector<BoneContactSpec> contact_bones;
   int contact_samples_per_span = 2;  // boundary sample density for plane contact
@@ -147,6 +150,7 @@ struct SolidDynamicsModel {
   std::vector<ContactSample> contact_samples;
   double contact_stiffness_N_m = 0.0;  // per sample, resolved from the spec
   std::vector<std::shared_ptr<const MeshQuery>> bone_queries;  // per contact bone (rest frame)
+  std::vector<std::vector<char>> bone_exempt;  // per contact bone: per sample, inside at rest (exempt)
   // Lower-triangle block pairs (I >= J) of each quadrature point: local support indices and the
   // block's position in block_row; pairs of quadrature point q start at pair_first[q].
   struct BlockPair {

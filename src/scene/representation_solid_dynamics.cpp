@@ -1,0 +1,479 @@
+// "solid_dynamics": the muscle as a volumetric B-spline solid in motion (seed 000 ch. 4; the solver
+// is dynamics/solid_dynamics.hpp, the method docs/solid-dynamics.md). At set-up the rest surface is
+// fitted with a cylindrical B-spline solid along the origin → insertion axis, its end layers are
+// attached to the origin and insertion, the bones near the muscle become contact meshes, and the
+// muscle's own rest mesh is embedded in the solid (free-form deformation, seed 000 §3.1.3). Each
+// frame integrates the solid from the previous frame's time to this one (backward Euler, sub-steps,
+// the scene's activation as the excitation) with the attachments and bones interpolated between
+// the two frames' poses; the surface is the embedded rest mesh (same rows and faces as the
+// Model's rest mesh), the fibres are iso-parametric curves of the solid's fibre direction.
+#include "fascicle/bspline/fitting.hpp"
+#include "fascicle/bspline/membership.hpp"
+#include "fascicle/bspline/tessellation.hpp"
+#include "fascicle/core/error.hpp"
+#include "fascicle/core/parallel.hpp"
+#include "fascicle/deformation/mesh_operators.hpp"
+#include "fascicle/dynamics/solid_dynamics.hpp"
+#include "fascicle/geometry/mesh_query.hpp"
+#include "fascicle/scene/builtins.hpp"
+#include "fascicle/scene/model.hpp"
+#include "fascicle/scene/state.hpp"
+#include "muscle_setup.hpp"
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include <Eigen/Geometry>
+#include <Eigen/LU>
+
+#include <algorithm>
+#include <cmath>
+
+namespace fascicle {
+namespace {
+
+using namespace scene_detail;
+
+// Drivers of the solver's StepInputs::X_now_rest: [0] origin end, [1] insertion end, [2 + k] bone k.
+constexpr int kOriginDriver = 0, kInsertionDriver = 1, kFirstBoneDriver = 2;
+
+// A rigid motion between two others: rotation by slerp, translation linearly.
+Transform interpolate_motion(const Transform& a, const Transform& b, double t) {
+  const Eigen::Quaterniond qa(a.linear()), qb(b.linear());
+  Transform X = Transform::Identity();
+  X.linear() = qa.slerp(t, qb).toRotationMatrix();
+  X.translation() = (1.0 - t) * a.translation() + t * b.translation();
+  return X;
+}
+
+// A point at arc length s along a polyline (from its first point), with the unit direction of the
+// segment there; beyond the ends the first/last segment is extended.
+std::pair<Vec3, Vec3> calc_point_at_arc(const Points3& line, double s) {
+  const Eigen::Index n = line.rows();
+  double start = 0.0;
+  for (Eigen::Index i = 0; i + 1 < n; ++i) {
+    const Vec3 a = line.row(i).transpose(), b = line.row(i + 1).transpose();
+    const double l = (b - a).norm();
+    if (!(l > 0.0)) continue;
+    if (s <= start + l || i + 2 == n) return {a + (s - start) / l * (b - a), (b - a) / l};
+    start += l;
+  }
+  return {line.row(0).transpose(), Vec3::UnitZ()};
+}
+
+// Arc length (from the polyline's first point) of the point of the polyline closest to p.
+double find_closest_arc(const Points3& line, const Vec3& p) {
+  double best = INFINITY, best_s = 0.0, start = 0.0;
+  for (Eigen::Index i = 0; i + 1 < line.rows(); ++i) {
+    const Vec3 a = line.row(i).transpose(), b = line.row(i + 1).transpose();
+    const double l = (b - a).norm();
+    if (!(l > 0.0)) continue;
+    const double t = std::clamp((p - a).dot(b - a) / (l * l), 0.0, 1.0);
+    const double d = (a + t * (b - a) - p).squaredNorm();
+    if (d < best) best = d, best_s = start + t * l;
+    start += l;
+  }
+  return best_s;
+}
+
+Points3 reversed_rows(const Points3& P) { return P.colwise().reverse().eval(); }
+
+// How one end layer of the solid moves. An end whose attachment area lies on the rest surface
+// follows its body rigidly. An end whose landmarks are away from the belly (e.g. a soleus ending in
+// the Achilles tendon) keeps its arc length from that end of the action line, as through an
+// inextensible tendon: it moves with the line's point at that arc length and turns with the line's
+// direction there.
+struct EndDriver {
+  bool rigid = true;
+  BodyIndex body;
+  bool from_end = false;   // arc length measured from the insertion end of the line
+  double arc_m = 0.0;
+  Vec3 p_rest = Vec3::Zero(), d_rest = Vec3::UnitZ();
+};
+
+struct SolidOptions {
+  std::array<int, 3> lattice{3, 8, 6};
+  int degree = 2;
+  double time_step_s = 0.005;
+  int reuse_factorisation = 20;
+  int settle_steps = 8;
+  double settle_step_s = 0.01;
+};
+
+class SolidDynamicsRepresentation final : public MuscleRepresentation {
+ public:
+  SolidDynamicsRepresentation(const Model& model, MuscleIndex mi) {
+    const Muscle& m = model.get_muscle(mi);
+    if (m.rest_mesh.V.rows() == 0)
+      throw_bad_input("representation 'solid_dynamics' needs a muscle mesh",
+                      {.object = m.name, .suggestion = "give the muscle a mesh, or use 'action_line'"});
+    options_.lattice = {static_cast<int>(get_option(m, "lattice_u", 3)), static_cast<int>(get_option(m, "lattice_v", 8)),
+                        static_cast<int>(get_option(m, "lattice_w", 6))};
+    options_.degree = static_cast<int>(get_option(m, "degree", 2));
+    options_.time_step_s = get_option(m, "time_step", options_.time_step_s);
+    options_.reuse_factorisation = static_cast<int>(get_option(m, "reuse_factorisation", options_.reuse_factorisation));
+    options_.settle_steps = static_cast<int>(get_option(m, "settle_steps", options_.settle_steps));
+    options_.settle_step_s = get_option(m, "settle_step", options_.settle_step_s);
+    if (options_.lattice[0] < 2 || options_.lattice[1] < 3 || options_.lattice[2] < 2 || options_.degree < 1 ||
+        !(options_.time_step_s > 0.0) || options_.settle_steps < 1)
+      throw_bad_input("solid_dynamics options: need lattice_u >= 2, lattice_v >= 3, lattice_w >= 2, degree >= 1, "
+                      "time_step > 0 and settle_steps >= 1",
+                      {.object = m.name});
+
+    const BSplineSolid solid = fit_rest_solid(model, m);
+    const Vec3 origin_c = model.X_ground_body_default[m.origin.body.v] * m.origin.p_body_centroid;
+    const Vec3 insertion_c = model.X_ground_body_default[m.insertion.body.v] * m.insertion.p_body_centroid;
+    // Which end layer is the origin: the one nearer the origin landmarks' centroid.
+    const auto layer_centroid = [&](int side) {
+      Vec3 c = Vec3::Zero();
+      const std::vector<int> layer = find_end_layer(solid, side);
+      for (int i : layer) c += solid.P.row(i).transpose();
+      return Vec3(c / static_cast<double>(layer.size()));
+    };
+    const Vec3 c0 = layer_centroid(0), c1 = layer_centroid(1);
+    const int origin_side = (c0 - origin_c).norm() + (c1 - insertion_c).norm() <=
+                                    (c1 - origin_c).norm() + (c0 - insertion_c).norm()
+                                ? 0
+                                : 1;
+
+    SolidDynamicsSpec spec;
+    spec.gravity_m_s2.setZero();  // scenes carry no gravity direction; the bones hold the muscle
+    spec.density_kg_m3 = get_option(m, "density", spec.density_kg_m3);
+    spec.ground.c1_Pa = get_option(m, "c1", 5e4);
+    spec.ground.c2_Pa = get_option(m, "c2", 0.5 * spec.ground.c1_Pa);
+    spec.rayleigh_alpha_1_s = get_option(m, "damping", 10.0);
+    spec.pennation_rad = get_option(m, "pennation", 0.0);
+    spec.tendon_fraction_start = spec.tendon_fraction_end = get_option(m, "tendon_fraction", 0.0);
+    spec.tendon_modulus_Pa = get_option(m, "tendon_modulus", spec.tendon_modulus_Pa);
+    spec.fibre.sigma_max_Pa = get_option(m, "max_stress", spec.fibre.sigma_max_Pa);
+    const double penalty = get_option(m, "volume_penalty", 0.0);
+    if (penalty > 0.0) {
+      spec.volume = VolumeMethod::penalty;
+      spec.volume_stiffness_Pa = penalty;
+    }
+    spec.attachments.push_back({"origin", kOriginDriver, find_end_layer(solid, origin_side)});
+    spec.attachments.push_back({"insertion", kInsertionDriver, find_end_layer(solid, 1 - origin_side)});
+    const Points3 rest_line = calc_rest_action_line(model, m);
+    ends_[0] = make_end_driver(model, m, m.origin, false, rest_line, origin_side == 0 ? c0 : c1);
+    ends_[1] = make_end_driver(model, m, m.insertion, true, rest_line, origin_side == 0 ? c1 : c0);
+
+    // Bones the muscle may touch: obstacle meshes whose rest box comes within bone_margin of the
+    // muscle's. Boundary points of the solid already inside a bone at rest stay exempt.
+    const double margin = get_option(m, "bone_margin", 0.02);
+    Eigen::AlignedBox3d box(m.rest_mesh.V.colwise().minCoeff().transpose(), m.rest_mesh.V.colwise().maxCoeff().transpose());
+    box.min().array() -= margin;
+    box.max().array() += margin;
+    if (get_option(m, "contact", 1.0) != 0.0)
+      for (int b = 1; b < model.num_bodies(); ++b) {
+        const Body& body = model.bodies[b];
+        if (!body.rest_query || !body.mesh_is_obstacle || !body.rest_box.intersects(box)) continue;
+        BoneContactSpec c;
+        c.name = body.name;
+        c.body = kFirstBoneDriver + static_cast<int>(bone_bodies_.size());
+        c.mesh_rest = body.rest_query->get_mesh();
+        c.exempt_rest_contact = true;
+        spec.contact_bones.push_back(std::move(c));
+        bone_bodies_.push_back(BodyIndex{b});
+      }
+    try {
+      model_ = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(solid, spec));
+    } catch (const Error& e) {
+      ErrorContext c = e.context();
+      if (c.suggestion.empty())
+        c.suggestion = "change the muscle's solid_dynamics options lattice_u, lattice_v, lattice_w or degree";
+      throw Error(e.kind(), e.message(), c);
+    }
+    solver_options_.integrator = Integrator::backward_euler;
+    solver_options_.reuse_factorisation_steps = std::max(0, options_.reuse_factorisation);
+
+    embed_rest_surface(m);
+    make_fibre_grid(m);
+    setup_penetration(model, m);
+  }
+
+  struct Frame final : RepresentationState {
+    Frame(std::shared_ptr<const SolidDynamicsModel> model, SolverOptions options)
+        : solver(std::move(model), options) {}
+    SolidDynamicsSolver solver;
+    bool started = false;
+    double time_s = 0.0;
+    std::vector<Transform> X_prev;  // drivers at the previous frame
+  };
+
+  std::unique_ptr<RepresentationState> make_state() const override {
+    return std::make_unique<Frame>(model_, solver_options_);
+  }
+
+  void calc_geometry(const Model& model, MuscleIndex mi, const State& state, RepresentationState* rs,
+                     MuscleFrame& out) const override {
+    auto* frame = dynamic_cast<Frame*>(rs);
+    if (!frame) throw_internal("solid_dynamics: the State was not made for this Model (make_state)");
+    const Muscle& m = model.get_muscle(mi);
+    const double a = mi.v < state.activation.size() && std::isfinite(state.activation[mi.v]) ? state.activation[mi.v]
+                                                                                          : m.activation;
+    const std::vector<Transform> X_now = calc_drivers(model, state, out.action_line);
+    const double dt = state.time_s - frame->time_s;
+    if (!frame->started || dt < 0.0) {
+      settle(*frame, X_now, state.time_s);
+    } else if (dt > 0.0) {
+      const int n = std::max(1, static_cast<int>(std::ceil(dt / options_.time_step_s - 1e-9)));
+      StepInputs in;
+      in.excitation = a;
+      for (int k = 0; k < n; ++k) {
+        in.X_now_rest.resize(X_now.size());
+        for (std::size_t d = 0; d < X_now.size(); ++d)
+          in.X_now_rest[d] = interpolate_motion(frame->X_prev[d], X_now[d], static_cast<double>(k + 1) / n);
+        frame->solver.step(dt / n, in);
+      }
+    }
+    frame->X_prev = X_now;
+    frame->time_s = state.time_s;
+    fill_frame(model, state, frame->solver, X_now, out);
+  }
+
+ private:
+  BSplineSolid fit_rest_solid(const Model& model, const Muscle& m) const {
+    MeshFitOptions o;
+    o.count = options_.lattice;
+    o.degree = {std::min(options_.degree, std::min(2, o.count[0] - 1)), options_.degree,
+                std::min(options_.degree, o.count[2] - 1)};
+    o.num_slices = static_cast<int>(get_option(m, "slices", 48));
+    // End caps a little inside the mesh's tips: a tapered (spindle) belly fitted to its very tips
+    // gives nearly collapsed end layers, badly conditioned for the dynamics.
+    o.end_inset = get_option(m, "end_inset", 0.05);
+    o.name = m.name;
+    o.origin = model.X_ground_body_default[m.origin.body.v] * m.origin.p_body_centroid;
+    o.insertion = model.X_ground_body_default[m.insertion.body.v] * m.insertion.p_body_centroid;
+    try {
+      return fit_solid_to_mesh(m.rest_mesh, o).solid;
+    } catch (const Error& e) {
+      if (e.kind() != ErrorKind::bad_input) throw;
+      // The origin → insertion axis may cross the belly obliquely (an insertion far along a
+      // tendon): slice along the belly's own longest axis instead.
+      spdlog::debug("muscle '{}': fitting along the origin-insertion axis failed ({}); using the mesh's long axis",
+                    m.name, e.message());
+      o.origin.reset();
+      o.insertion.reset();
+      try {
+        return fit_solid_to_mesh(m.rest_mesh, o).solid;
+      } catch (const Error& e2) {
+        ErrorContext c = e2.context();
+        c.object = m.name;
+        c.suggestion = "the solid is fitted to slices of the muscle mesh; each slice must be one closed contour "
+                       "(try the option 'slices')";
+        throw Error(e2.kind(), "solid_dynamics: cannot fit a B-spline solid to the muscle mesh: " + e2.message(), c);
+      }
+    }
+  }
+
+  EndDriver make_end_driver(const Model& model, const Muscle& m, const Attachment& att, bool from_end,
+                            const Points3& rest_line, const Vec3& layer_centroid) const {
+    EndDriver d;
+    d.body = att.body;
+    d.from_end = from_end;
+    d.rigid = !find_area_vertices(model, m, att).empty() || get_option(m, "rigid_ends", 0.0) != 0.0;
+    if (d.rigid) return d;
+    const Points3 line = from_end ? reversed_rows(rest_line) : rest_line;
+    d.arc_m = find_closest_arc(line, layer_centroid);
+    std::tie(d.p_rest, d.d_rest) = calc_point_at_arc(line, d.arc_m);
+    return d;
+  }
+
+  std::vector<Transform> calc_drivers(const Model& model, const State& state, const Points3& action_line) const {
+    std::vector<Transform> X(kFirstBoneDriver + bone_bodies_.size(), Transform::Identity());
+    for (int e = 0; e < 2; ++e) {
+      const EndDriver& d = ends_[e];
+      if (d.rigid || action_line.rows() < 2) {
+        X[e] = calc_body_motion(model, state, d.body);
+        continue;
+      }
+      const Points3 line = d.from_end ? reversed_rows(action_line) : action_line;
+      const auto [p, dir] = calc_point_at_arc(line, d.arc_m);
+      Transform T = Transform::Identity();
+      T.linear() = Eigen::Quaterniond::FromTwoVectors(d.d_rest, dir).toRotationMatrix();
+      T.translation() = p - T.linear() * d.p_rest;
+      X[e] = T;
+    }
+    for (std::size_t k = 0; k < bone_bodies_.size(); ++k)
+      X[kFirstBoneDriver + k] = calc_body_motion(model, state, bone_bodies_[k]);
+    return X;
+  }
+
+  // First frame (or time went backwards): start from rest, passive, then bring the attachments and
+  // bones from the rest pose to this frame's in quasi-static steps. Activation starts at 0 and
+  // follows the scene's (as excitation) through activation dynamics from then on. (A quasi-static
+  // active muscle between fixed ends has no unique equilibrium on the force–length curve.)
+  void settle(Frame& frame, const std::vector<Transform>& X_now, double time_s) const {
+    SolidState s;
+    s.P = model_->rest.P;
+    s.V = Points3::Zero(s.P.rows(), 3);
+    s.activation = 0.0;
+    bool at_rest = true;
+    for (const Transform& X : X_now) at_rest = at_rest && X.isApprox(Transform::Identity(), 1e-12);
+    if (!at_rest) {
+      SolidDynamicsSolver quasi(model_, solver_options_);
+      quasi.set_state(s);
+      const std::vector<Transform> I(X_now.size(), Transform::Identity());
+      StepInputs in;
+      in.excitation = s.activation;
+      for (int k = 0; k < options_.settle_steps; ++k) {
+        in.X_now_rest.resize(X_now.size());
+        for (std::size_t d = 0; d < X_now.size(); ++d)
+          in.X_now_rest[d] = interpolate_motion(I[d], X_now[d], static_cast<double>(k + 1) / options_.settle_steps);
+        quasi.step(options_.settle_step_s, in);
+      }
+      s = quasi.get_state();
+      s.V.setZero();
+    }
+    s.time_s = time_s;
+    s.activation = 0.0;
+    frame.solver.set_state(std::move(s));
+    frame.started = true;
+  }
+
+  // The rest mesh in the solid: each vertex at material point U_i with the offset o_i to its
+  // closest solid point (vertices slightly outside the fitted solid). The offset is carried to
+  // first order by the solid's local map: x_i = x(U_i) + J(U_i) J_rest(U_i)⁻¹ o_i (exact for rigid
+  // and affine motions).
+  void embed_rest_surface(const Muscle& m) {
+    const Points3& X = m.rest_mesh.V;
+    const BSplineSolid& solid = model_->rest;
+    const SolidLocator locator(solid);
+    std::vector<PointLocation> loc(static_cast<std::size_t>(X.rows()));
+    parallel_for(loc.size(), [&](std::size_t i) { loc[i] = locator.locate(X.row(static_cast<Eigen::Index>(i)).transpose()); });
+    const int n = solid.num_control_points();
+    const auto rows = X.rows();
+    std::array<std::vector<Eigen::Triplet<double>>, 4> t;
+    for (Eigen::Index i = 0; i < rows; ++i) {
+      const Vec3 U = loc[static_cast<std::size_t>(i)].material;
+      append_basis_row(solid, U, {0, 0, 0}, static_cast<int>(i), t[0]);
+      append_basis_row(solid, U, {1, 0, 0}, static_cast<int>(i), t[1]);
+      append_basis_row(solid, U, {0, 1, 0}, static_cast<int>(i), t[2]);
+      append_basis_row(solid, U, {0, 0, 1}, static_cast<int>(i), t[3]);
+    }
+    for (int d = 0; d < 4; ++d) {
+      surface_w_[d].resize(rows, n);
+      surface_w_[d].setFromTriplets(t[d].begin(), t[d].end());
+    }
+    const Points3 x0 = surface_w_[0] * solid.P;
+    const Points3 J0[3] = {surface_w_[1] * solid.P, surface_w_[2] * solid.P, surface_w_[3] * solid.P};
+    offset_material_ = Points3::Zero(rows, 3);
+    offset_fixed_ = Points3::Zero(rows, 3);
+    int outside = 0;
+    for (Eigen::Index i = 0; i < rows; ++i) {
+      const Vec3 o = (X.row(i) - x0.row(i)).transpose();
+      if (o.norm() > 1e-9) ++outside;
+      Mat3 J;
+      for (int d = 0; d < 3; ++d) J.col(d) = J0[d].row(i).transpose();
+      const Vec3 dU = J.fullPivLu().solve(o);
+      if (dU.allFinite() && (J * dU - o).norm() <= 1e-9 + 1e-6 * o.norm())
+        offset_material_.row(i) = dU.transpose();
+      else
+        offset_fixed_.row(i) = o.transpose();
+    }
+    spdlog::debug("muscle '{}': {} of {} surface vertices outside the fitted solid", m.name, outside, rows);
+  }
+
+  Points3 calc_surface(const Points3& P) const {
+    Points3 S = surface_w_[0] * P + offset_fixed_;
+    for (int d = 0; d < 3; ++d)
+      S += ((surface_w_[1 + d] * P).array().colwise() * offset_material_.col(d).array()).matrix();
+    return S;
+  }
+
+  // Iso-parametric curves of the fibre direction on a grid of the cross-section.
+  void make_fibre_grid(const Muscle& m) {
+    const BSplineSolid& solid = model_->rest;
+    const int f = static_cast<int>(solid.fibre_direction), a = (f + 1) % 3, b = (f + 2) % 3;
+    const int na = std::max(1, static_cast<int>(get_option(m, "fibre_rings", 2)));
+    const int nb = std::max(1, static_cast<int>(get_option(m, "fibre_count_around", 8)));
+    fibre_samples_ = std::max(2, static_cast<int>(get_option(m, "fibre_samples", 16)));
+    const Vec3 lo = solid.get_lower(), hi = solid.get_upper();
+    std::vector<Eigen::Triplet<double>> t;
+    int row = 0;
+    for (int i = 0; i < na; ++i)
+      for (int j = 0; j < nb; ++j)
+        for (int s = 0; s < fibre_samples_; ++s) {
+          Vec3 U;
+          U[a] = lo[a] + (hi[a] - lo[a]) * (i + 0.5) / na;
+          U[b] = lo[b] + (hi[b] - lo[b]) * (solid.basis[b].periodic ? j / static_cast<double>(nb) : (j + 0.5) / nb);
+          U[f] = lo[f] + (hi[f] - lo[f]) * s / (fibre_samples_ - 1.0);
+          append_basis_row(solid, U, {0, 0, 0}, row++, t);
+        }
+    fibre_w_.resize(row, solid.num_control_points());
+    fibre_w_.setFromTriplets(t.begin(), t.end());
+    num_fibres_ = na * nb;
+    const std::vector<Points3> rest = calc_fibres(solid.P);
+    rest_fibre_length_.resize(num_fibres_);
+    for (int k = 0; k < num_fibres_; ++k) rest_fibre_length_[k] = calc_polyline_length(rest[static_cast<std::size_t>(k)]);
+  }
+
+  std::vector<Points3> calc_fibres(const Points3& P) const {
+    const Points3 X = fibre_w_ * P;
+    std::vector<Points3> out(static_cast<std::size_t>(num_fibres_));
+    for (int k = 0; k < num_fibres_; ++k) out[static_cast<std::size_t>(k)] = X.middleRows(k * fibre_samples_, fibre_samples_);
+    return out;
+  }
+
+  // Rest depth of each surface vertex inside each nearby bone (bones given as rest-pose queries),
+  // so that the frame's penetration counts only what lies beyond the rest contact.
+  void setup_penetration(const Model& model, const Muscle& m) {
+    for (std::size_t k = 0; k < bone_bodies_.size(); ++k) {
+      const MeshQuery& q = *model.get_body(bone_bodies_[k]).rest_query;
+      rest_depth_.push_back((-q.calc_signed_distances(m.rest_mesh.V)).cwiseMax(0.0));
+    }
+  }
+
+  double calc_penetration(const Model& model, const Points3& S, const std::vector<Transform>& X) const {
+    double worst = 0.0;
+    for (std::size_t k = 0; k < bone_bodies_.size(); ++k) {
+      const Body& body = model.get_body(bone_bodies_[k]);
+      const Transform X_rest_now = X[kFirstBoneDriver + k].inverse();
+      Points3 local = ((S * X_rest_now.linear().transpose()).rowwise() + X_rest_now.translation().transpose()).eval();
+      std::vector<Eigen::Index> in_box;
+      for (Eigen::Index i = 0; i < local.rows(); ++i)
+        if (body.rest_box.contains(local.row(i).transpose())) in_box.push_back(i);
+      if (in_box.empty()) continue;
+      Points3 P(static_cast<Eigen::Index>(in_box.size()), 3);
+      for (std::size_t j = 0; j < in_box.size(); ++j) P.row(static_cast<Eigen::Index>(j)) = local.row(in_box[j]);
+      const VecX sd = body.rest_query->calc_signed_distances(P);
+      for (std::size_t j = 0; j < in_box.size(); ++j)
+        worst = std::max(worst, -sd[static_cast<Eigen::Index>(j)] - rest_depth_[k][in_box[j]]);
+    }
+    return worst;
+  }
+
+  void fill_frame(const Model& model, const State&, const SolidDynamicsSolver& solver,
+                  const std::vector<Transform>& X, MuscleFrame& out) const {
+    const Points3& P = solver.get_state().P;
+    out.surface = calc_surface(P);
+    StepInputs in;
+    in.X_now_rest = X;
+    const SolidMetrics mm = solver.calc_metrics(in);
+    out.volume_m3 = mm.volume_m3;
+    out.relative_volume_change = mm.volume_error;
+    out.max_bone_penetration_m = calc_penetration(model, out.surface, X);
+    out.fibres = calc_fibres(P);
+    set_fibre_metrics(rest_fibre_length_, out);
+  }
+
+  SolidOptions options_;
+  SolverOptions solver_options_;
+  std::shared_ptr<const SolidDynamicsModel> model_;
+  std::array<EndDriver, 2> ends_;
+  std::vector<BodyIndex> bone_bodies_;           // bone k drives X_now_rest[kFirstBoneDriver + k]
+  std::vector<VecX> rest_depth_;                 // per bone: rest depth of each surface vertex
+  std::array<SparseRowMatrix, 4> surface_w_;     // basis and its u, v, w derivatives at the vertices
+  Points3 offset_material_, offset_fixed_;
+  SparseRowMatrix fibre_w_;
+  int num_fibres_ = 0, fibre_samples_ = 2;
+  VecX rest_fibre_length_;
+};
+
+}  // namespace
+
+std::unique_ptr<const MuscleRepresentation> make_solid_dynamics(const Model& model, MuscleIndex m) {
+  return std::make_unique<SolidDynamicsRepresentation>(model, m);
+}
+
+}  // namespace fascicle
