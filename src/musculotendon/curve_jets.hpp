@@ -14,22 +14,20 @@ namespace fascicle::detail {
 inline constexpr double kThelenToeShape = 3.0;   // kToe
 inline constexpr double kThelenToeForce = 0.33;  // Ftoe
 
-// exp(−d²/K), d = l − 1.
-inline CurveJet thelen_active_jet(const ThelenCurveParameters& p, double l) {
+// exp(−d²/K), d = l − 1 (k.active_rate = 1/K).
+inline CurveJet thelen_active_jet(const ThelenCurveConstants& k, double l) {
   const double d = l - 1.0;
-  const double v = std::exp(-d * d / p.KshapeActive);
-  const double d1 = -2.0 * d / p.KshapeActive * v;
-  return {v, d1, -2.0 / p.KshapeActive * (v + d * d1)};
+  const double v = std::exp(-d * d * k.active_rate);
+  const double d1 = -2.0 * k.active_rate * d * v;
+  return {v, d1, -2.0 * k.active_rate * (v + d * d1)};
 }
 
-// (exp(k (l − 1)/e0) − 1)/(exp(k) − 1) for l > 1, else 0.
-inline CurveJet thelen_passive_jet(const ThelenCurveParameters& p, const ThelenCurveConstants& c,
-                                   double l) {
+// (exp(kPE (l − 1)/e0) − 1)/(exp(kPE) − 1) for l > 1, else 0.
+inline CurveJet thelen_passive_jet(const ThelenCurveConstants& k, double l) {
   if (l <= 1.0) return {0.0, 0.0, 0.0};
-  const double k = p.KshapePassive, e0 = p.FmaxMuscleStrain;
-  const double ex = std::exp(k * (l - 1.0) / e0), den = c.passive_den;
-  const double d1 = k / e0 * ex / den;
-  return {(ex - 1.0) / den, d1, k / e0 * d1};
+  const double ex = std::exp(k.passive_rate * (l - 1.0));
+  const double d1 = k.passive_rate * ex * k.inv_passive_den;
+  return {(ex - 1.0) * k.inv_passive_den, d1, k.passive_rate * d1};
 }
 
 // Exponential toe then linear, in strain x = lT/lTs − 1.
@@ -38,10 +36,9 @@ inline CurveJet thelen_tendon_jet(const ThelenCurveConstants& k, double lt) {
   const double etoe = k.tendon_toe_strain, klin = k.tendon_linear_stiffness;
   if (x > etoe) return {klin * (x - etoe) + kThelenToeForce, klin, 0.0};
   if (x > 0.0) {
-    const double c = kThelenToeForce / std::expm1(kThelenToeShape);
-    const double ex = std::exp(kThelenToeShape * x / etoe);
-    const double d1 = c * kThelenToeShape / etoe * ex;
-    return {c * (ex - 1.0), d1, kThelenToeShape / etoe * d1};
+    const double ex = std::exp(k.tendon_toe_rate * x);
+    const double d1 = k.tendon_toe_scale * k.tendon_toe_rate * ex;
+    return {k.tendon_toe_scale * (ex - 1.0), d1, k.tendon_toe_rate * d1};
   }
   return {0.0, 0.0, 0.0};
 }

@@ -20,17 +20,27 @@ CurvePoint first_two(const CurveJet& j) { return {j.value, j.derivative}; }
 }  // namespace
 
 CurvePoint thelen_active_force_length(const ThelenCurveParameters& p, double l) {
-  return first_two(detail::thelen_active_jet(p, l));
+  ThelenCurveConstants k;  // only the Gaussian's rate is needed
+  k.active_rate = 1.0 / p.KshapeActive;
+  return first_two(detail::thelen_active_jet(k, l));
 }
 
 ThelenCurveConstants make_thelen_constants(const ThelenCurveParameters& p) {
-  return {std::exp(p.KshapePassive) - 1.0, thelen_tendon_toe_strain(p.FmaxTendonStrain),
-          thelen_tendon_linear_stiffness(p.FmaxTendonStrain)};
+  ThelenCurveConstants k;
+  k.passive_den = std::exp(p.KshapePassive) - 1.0;
+  k.tendon_toe_strain = thelen_tendon_toe_strain(p.FmaxTendonStrain);
+  k.tendon_linear_stiffness = thelen_tendon_linear_stiffness(p.FmaxTendonStrain);
+  k.active_rate = 1.0 / p.KshapeActive;
+  k.passive_rate = p.KshapePassive / p.FmaxMuscleStrain;
+  k.inv_passive_den = 1.0 / k.passive_den;
+  k.tendon_toe_rate = detail::kThelenToeShape / k.tendon_toe_strain;
+  k.tendon_toe_scale = detail::kThelenToeForce / std::expm1(detail::kThelenToeShape);
+  return k;
 }
 
-CurvePoint thelen_passive_force_length(const ThelenCurveParameters& p, const ThelenCurveConstants& c,
+CurvePoint thelen_passive_force_length(const ThelenCurveParameters&, const ThelenCurveConstants& c,
                                        double l) {
-  return first_two(detail::thelen_passive_jet(p, c, l));
+  return first_two(detail::thelen_passive_jet(c, l));
 }
 
 CurvePoint thelen_passive_force_length(const ThelenCurveParameters& p, double l) {

@@ -218,7 +218,22 @@ Geometry fiber_geometry(const Musculotendon& m, double lM, double lMT) {
 // Curve values already computed at the state's fibre and tendon lengths (reused, not recomputed).
 struct KnownCurves {
   double fal, fpe, ft;
+  double fv = std::numeric_limits<double>::quiet_NaN();  // NaN: not known
 };
+
+// F0 l0 ∫ f_PE at a fibre length where f_PE is known. Thelen: expm1 of the exponent is
+// f_PE·(exp(kPE) − 1), exact to a few ulps once f_PE·den ≥ 1 (the integral then exceeds
+// 0.3 e0/kPE, so its relative error stays below 1e-14); below that, or for the other models, the
+// integral is evaluated directly.
+double calc_passive_energy_known(const Musculotendon& m, double lM, double fpe) {
+  const ThelenCurveConstants& k = m.thelen_constants;
+  if (m.params.model != MuscleModel::thelen2003 || !(fpe * k.passive_den >= 1.0)) {
+    return calc_passive_energy_J(m, lM);
+  }
+  const double l0 = m.params.optimal_fiber_length_m;
+  const double e = (fpe * k.passive_den / k.passive_rate - (lM / l0 - 1.0)) / k.passive_den;
+  return e * m.params.max_isometric_force_N * l0;
+}
 
 // The three length-dependent curves with their first and second derivatives at normalised fibre
 // length l and normalised tendon length t (one switch, inlined curve kernels); the tendon curve
@@ -229,8 +244,8 @@ struct LengthJets {
 inline LengthJets calc_length_jets(const Musculotendon& m, double l, double t, bool tendon) {
   switch (m.params.model) {
     case MuscleModel::thelen2003:
-      return {detail::thelen_active_jet(m.params.thelen, l),
-              detail::thelen_passive_jet(m.params.thelen, m.thelen_constants, l),
+      return {detail::thelen_active_jet(m.thelen_constants, l),
+              detail::thelen_passive_jet(m.thelen_constants, l),
               tendon ? detail::thelen_tendon_jet(m.thelen_constants, t) : CurveJet{}};
     case MuscleModel::millard2012:
       return {m.millard.active_force_length.calc_jet(l), m.millard.passive_force_length.calc_jet(l),
@@ -274,7 +289,9 @@ void fill_outputs(const Musculotendon& m, double a, const Geometry& g, double vM
       known ? known->fal : calc_active_force_length(m, o.norm_fiber_length).value;
   o.passive_force_multiplier =
       known ? known->fpe : calc_passive_force_length(m, o.norm_fiber_length).value;
-  o.force_velocity_multiplier = calc_force_velocity(m, a, o.norm_fiber_velocity).value;
+  o.force_velocity_multiplier = (known && !std::isnan(known->fv))
+                                    ? known->fv
+                                    : calc_force_velocity(m, a, o.norm_fiber_velocity).value;
   o.active_fiber_force_N = F0 * a * o.active_force_length_multiplier * o.force_velocity_multiplier;
   o.passive_fiber_force_N = F0 * o.passive_force_multiplier;
   o.damping_fiber_force_N = F0 * m.fiber_damping * o.norm_fiber_velocity;
@@ -290,7 +307,8 @@ void fill_outputs(const Musculotendon& m, double a, const Geometry& g, double vM
   o.norm_tendon_force = o.tendon_force_N / F0;
   o.fiber_active_power_W = -o.active_fiber_force_N * vM;
   if (!energies) return;  // left NaN
-  o.fiber_passive_energy_J = calc_passive_energy_J(m, g.lM);
+  o.fiber_passive_energy_J =
+      known ? calc_passive_energy_known(m, g.lM, known->fpe) : calc_passive_energy_J(m, g.lM);
   o.tendon_energy_J = rigid ? 0.0 : calc_tendon_energy_J(m, g.lT);
 }
 
@@ -417,6 +435,7 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
   // non-positive error there means a slack tendon); the lower end only when Newton heads for it.
   double vN = 0.0, lM = std::numeric_limits<double>::quiet_NaN();
   double vN_solved = 0.0;  // the velocity the final fibre length was solved with
+  double fv = 1.0, fv_solved = 1.0;  // fv(vN) of this pass, and of the pass that was solved
   int total_iterations = 0;
   Eval last{};
   bool at_lower = false;
@@ -425,7 +444,8 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
     at_lower = false;
     double lo = lo0, hi = hi0;
     bool lo_checked = false;
-    const double fv = calc_force_velocity(m, a, vN).value;
+    fv = calc_force_velocity(m, a, vN).value;
+    fv_solved = fv;
     evaluate(last, hi, vN, fv, false);
     if (last.r <= 0.0) evaluate(last, hi, vN, fv, true);  // slack: the tendon curve at lT = lTs
     if (last.r <= 0.0) {
@@ -458,10 +478,11 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
         evaluate(last, x, vN, fv, true);
         if (!std::isfinite(last.r)) fail_numerical(m, "non-finite force error in equilibrium");
         const bool newton_ok = last.dr > 0.0 && std::isfinite(last.dr);
-        const double dn = newton_ok ? -last.r / last.dr : 0.0;
+        const double inv_dr = 1.0 / last.dr;
+        const double dn = newton_ok ? -last.r * inv_dr : 0.0;
         // Chebyshev's third-order step δ = δN − (r''/2r') δN² (Newton's when the correction is
         // not small against δN, e.g. far away or across a kink of a Thelen curve).
-        const double q = newton_ok ? 0.5 * last.d2r / last.dr : 0.0;
+        const double q = newton_ok ? 0.5 * last.d2r * inv_dr : 0.0;
         const double step = (std::abs(q * dn) < 0.25) ? dn - q * dn * dn : dn;
         // A final step is taken without a confirming evaluation when its error,
         // O(δN³ (r''/r')²), is below 1e-17 l0.
@@ -520,7 +541,8 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
   // fixed point may not settle; the outputs always use the velocity the length was solved with.
   double vM = vN_solved * vscale;
   if (at_lower && vM < 0.0) vM = 0.0;
-  const KnownCurves known{last.jets.fal.value, last.jets.fpe.value, last.jets.ft.value};
+  const double fv_known = (vM == vN_solved * vscale) ? fv_solved : MuscleOutputs::nan;
+  const KnownCurves known{last.jets.fal.value, last.jets.fpe.value, last.jets.ft.value, fv_known};
   fill_outputs(m, a, last.g, vM, lMT, vMT, false, o, &known, options.energies);
   o.fiber_at_lower_bound = at_lower;
   o.iterations = total_iterations;

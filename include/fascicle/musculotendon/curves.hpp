@@ -52,6 +52,12 @@ struct ThelenCurveConstants {
   double passive_den = 0.0;           // exp(KshapePassive) − 1
   double tendon_toe_strain = 0.0;     // thelen_tendon_toe_strain(FmaxTendonStrain)
   double tendon_linear_stiffness = 0.0;
+  // Reciprocals and rates, so that the curves need no division (filled by make_thelen_constants).
+  double active_rate = 0.0;           // 1/KshapeActive
+  double passive_rate = 0.0;          // KshapePassive/FmaxMuscleStrain
+  double inv_passive_den = 0.0;       // 1/passive_den
+  double tendon_toe_rate = 0.0;       // kToe/ε_toe
+  double tendon_toe_scale = 0.0;      // Ftoe/(exp(kToe) − 1)
 };
 ThelenCurveConstants make_thelen_constants(const ThelenCurveParameters& p);
 CurvePoint thelen_passive_force_length(const ThelenCurveParameters& p, const ThelenCurveConstants& k,
