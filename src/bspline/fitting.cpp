@@ -4,15 +4,18 @@
 #include "fascicle/bspline/tessellation.hpp"
 #include "fascicle/bspline/volume.hpp"
 #include "fascicle/core/error.hpp"
+#include "fascicle/core/parallel.hpp"
 #include "fascicle/geometry/mass_properties.hpp"
 #include "fascicle/geometry/mesh_query.hpp"
 #include "fascicle/geometry/obb.hpp"
 #include "fascicle/geometry/slicing.hpp"
 
 #include <Eigen/SparseCholesky>
+#include <nanoflann.hpp>
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 
@@ -128,9 +131,70 @@ Points3 resample_contour(const Points3& pts, const Vec3& centre, const Vec3& e1,
   return out;
 }
 
+// nanoflann adaptor over the slice boundary samples (rows of X).
+struct BoundarySamples {
+  const Points3* X = nullptr;
+  std::vector<int> rows;
+  std::size_t kdtree_get_point_count() const { return rows.size(); }
+  double kdtree_get_pt(std::size_t i, std::size_t d) const {
+    return (*X)(rows[i], static_cast<Eigen::Index>(d));
+  }
+  template <class Box>
+  bool kdtree_get_bbox(Box&) const { return false; }
+  using Tree = nanoflann::KDTreeSingleIndexAdaptor<
+      nanoflann::L2_Simple_Adaptor<double, BoundarySamples>, BoundarySamples, 3>;
+};
+
+// Foot of the perpendicular from X onto the boundary surface u = 1 of a cylindrical lattice
+// (v periodic, w clamped to [0, 1]): Gauss–Newton on |x(1, v, w) - X|^2 from (v, w), steps
+// halved until the distance does not grow. Returns the improved (v, w).
+std::array<double, 2> project_onto_boundary(const BSplineSolid& s, const Vec3& X, double v,
+                                            double w) {
+  SolidPoint sp = calc_point_and_jacobian(s, Vec3(1.0, v, w));
+  double d2 = (sp.x - X).squaredNorm();
+  for (int it = 0; it < 8; ++it) {
+    const Vec3 r = sp.x - X;
+    const Vec3 xv = sp.J.col(1), xw = sp.J.col(2);
+    const double a = xv.dot(xv), b = xv.dot(xw), c = xw.dot(xw);
+    const double det = a * c - b * b;
+    if (!(det > 0)) break;
+    const double gv = xv.dot(r), gw = xw.dot(r);
+    double dv = -(c * gv - b * gw) / det, dw = -(a * gw - b * gv) / det;
+    // at most a tenth of the parameter range per step: stay on the same side of the muscle
+    const double m = std::max(std::abs(dv), std::abs(dw));
+    if (m > 0.1) dv *= 0.1 / m, dw *= 0.1 / m;
+    bool improved = false;
+    for (int h = 0; h < 6; ++h) {
+      const double vn = v + dv, wn = std::clamp(w + dw, 0.0, 1.0);
+      const SolidPoint tn = calc_point_and_jacobian(s, Vec3(1.0, vn, wn));
+      const double dn = (tn.x - X).squaredNorm();
+      if (dn < d2) {
+        v = vn - std::floor(vn), w = wn, sp = tn, d2 = dn;
+        improved = true;
+        break;
+      }
+      dv *= 0.5, dw *= 0.5;
+    }
+    if (!improved || std::max(std::abs(dv), std::abs(dw)) < 1e-10) break;
+  }
+  return {v, w};
+}
+
 }  // namespace
 
 MeshFitResult fit_solid_to_mesh(const TriMesh& mesh, const MeshFitOptions& o) {
+  if (!o.lattice_candidates.empty()) {
+    // lattice choice: every candidate (and `count`) is fitted; the smallest max distance wins
+    MeshFitOptions one = o;
+    one.lattice_candidates.clear();
+    MeshFitResult best = fit_solid_to_mesh(mesh, one);
+    for (const auto& c : o.lattice_candidates) {
+      one.count = c;
+      MeshFitResult r = fit_solid_to_mesh(mesh, one);
+      if (r.max_distance_m < best.max_distance_m) best = std::move(r);
+    }
+    return best;
+  }
   if (mesh.V.rows() == 0 || mesh.F.rows() == 0) throw_bad_input("the muscle mesh is empty");
   if (o.origin.has_value() != o.insertion.has_value()) {
     throw_usage("give both origin and insertion, or neither (automatic axis)");
@@ -224,6 +288,51 @@ MeshFitResult fit_solid_to_mesh(const TriMesh& mesh, const MeshFitOptions& o) {
   design.solid.name = o.name;
   design.solid.fibre_direction = FibreDirection::w;
   design.solid.P = fit_control_points(design.solid, design.constraints, U, X, weights, o.smoothing);
+  if (o.mesh_vertex_samples) {
+    // start each vertex's projection from the nearest slice boundary sample
+    BoundarySamples bs;
+    for (Eigen::Index r = 0; r < row; ++r)
+      if (U(r, 0) == 1.0) bs.rows.push_back(static_cast<int>(r));
+    bs.X = &X;
+    const BoundarySamples::Tree tree(3, bs, nanoflann::KDTreeSingleIndexAdaptorParams(16));
+    const int nv = static_cast<int>(mesh.V.rows());
+    std::vector<std::array<double, 2>> vw(nv);
+    parallel_for(static_cast<std::size_t>(nv), [&](std::size_t i) {
+      const Vec3 p = mesh.V.row(static_cast<Eigen::Index>(i)).transpose();
+      std::size_t nearest = 0;
+      double d2 = 0.0;
+      nanoflann::KNNResultSet<double> result(1);
+      result.init(&nearest, &d2);
+      tree.findNeighbors(result, p.data(), nanoflann::SearchParams());
+      const int r = bs.rows[nearest];
+      vw[i] = project_onto_boundary(design.solid, p, U(r, 1), U(r, 2));
+    });
+    // vertices whose foot is on the end rims (clamped w) belong to the end caps: left out
+    std::vector<int> keep;
+    for (int i = 0; i < nv; ++i)
+      if (vw[i][1] > 0.0 && vw[i][1] < 1.0) keep.push_back(i);
+    const Eigen::Index n0 = row, n1 = row + static_cast<Eigen::Index>(keep.size());
+    U.conservativeResize(n1, 3);
+    X.conservativeResize(n1, 3);
+    weights.conservativeResize(n1);
+    for (std::size_t k = 0; k < keep.size(); ++k) {
+      const Eigen::Index r = n0 + static_cast<Eigen::Index>(k);
+      U.row(r) << 1.0, vw[keep[k]][0], vw[keep[k]][1];
+      X.row(r) = mesh.V.row(keep[k]);
+      weights[r] = 4.0;
+    }
+    row = n1;
+    design.solid.P = fit_control_points(design.solid, design.constraints, U, X, weights, o.smoothing);
+  }
+  for (int it = 0; it < o.reparametrise_iterations; ++it) {
+    parallel_for(static_cast<std::size_t>(row), [&](std::size_t r) {
+      if (U(r, 0) != 1.0) return;
+      const auto vw = project_onto_boundary(design.solid, X.row(r).transpose(), U(r, 1), U(r, 2));
+      U(r, 1) = vw[0];
+      U(r, 2) = vw[1];
+    });
+    design.solid.P = fit_control_points(design.solid, design.constraints, U, X, weights, o.smoothing);
+  }
   validate_solid(design.solid);
   out.solid = std::move(design.solid);
   out.constraints = std::move(design.constraints);

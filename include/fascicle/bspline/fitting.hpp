@@ -12,7 +12,9 @@
 // contour (tiny extra contours are ignored); contours are parametrised by arc length from a seam
 // where they cross a fixed reference direction (consistent seams), giving boundary samples
 // (u = 1, v = arc fraction, w = slice level) and interior samples on the segments from the contour
-// centroid (u < 1). The lattice is cylindrical: u radial (axis at u = 0, constrained), v around
+// centroid (u < 1). A few rounds of parameter correction then move each boundary sample's (v, w)
+// to its closest point on the fitted boundary surface and fit again (the slice/arc-length
+// parametrisation is only a first guess of correspondence). The lattice is cylindrical: u radial (axis at u = 0, constrained), v around
 // (periodic), w along the axis (clamped).
 #pragma once
 
@@ -39,6 +41,18 @@ struct MeshFitOptions {
   int radial_samples = 4;               // interior rings per slice (u < 1)
   double end_inset = 0.0015;            // first/last slice: this fraction of the length inside
   double smoothing = 1e-7;
+  // Parameter correction (closest-point re-parametrisation): after each fit, every boundary
+  // sample's material coordinates (v, w) move to the foot of its perpendicular on the fitted
+  // boundary surface u = 1, then the control points are fitted again. 0 keeps the slice and
+  // arc-length parametrisation.
+  int reparametrise_iterations = 3;
+  // Also fit the mesh vertices themselves as boundary samples (material coordinates: their
+  // closest points on the first fitted boundary, then corrected like the slice samples). Slices
+  // sample surfaces that run across the axis (shelves, steps) poorly; vertices sample them.
+  bool mesh_vertex_samples = true;
+  // Lattice choice: when not empty, these control-point counts are fitted as well as `count` and
+  // the fit with the smallest max boundary distance is returned (its counts are in the solid).
+  std::vector<std::array<int, 3>> lattice_candidates;
   std::optional<Vec3> origin;           // attachment centres (m); both or neither
   std::optional<Vec3> insertion;
   std::string name;
