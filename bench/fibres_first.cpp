@@ -121,6 +121,8 @@ void BM_ShankFrame(benchmark::State& state) {
   o.dynamic = state.range(0) != 0;
   o.max_iterations = static_cast<int>(state.range(1));
   o.max_contact_rounds = static_cast<int>(state.range(2));
+  o.anderson_window = static_cast<int>(state.range(3));
+  o.step_tolerance = 1e-4 * static_cast<double>(state.range(4));
   const FibresFirstModel model = build_fibres_first_model(s.muscles, s.bone_list(), o);
   FibresFirstSolver solver(model);
   const Vec3 axis = Vec3::UnitX();  // medio-lateral in the Visible Human frame (x across the body)
@@ -135,13 +137,17 @@ void BM_ShankFrame(benchmark::State& state) {
   state.counters["setup_s"] = s.setup_s;
   state.SetLabel(o.dynamic ? "VH shank, dynamic" : "VH shank, quasi-static");
 }
-// Args: dynamic, iterations per round, contact rounds (20, 4: the defaults; 3, 1: real time)
+// Args: dynamic, iterations per round, contact rounds, Anderson window (0: plain projective
+// dynamics), step tolerance in units of 1e-4
 BENCHMARK(BM_ShankFrame)
-    ->Args({0, 20, 4})
-    ->Args({0, 3, 1})
-    ->Args({1, 3, 1})
+    ->Args({0, 20, 4, 5, 10})
+    ->Args({0, 20, 4, 0, 10})
+    ->Args({0, 10, 2, 5, 30})
+    ->Args({0, 10, 1, 5, 30})
+    ->Args({0, 3, 1, 5, 30})
+    ->Args({1, 10, 2, 5, 30})
     ->Unit(benchmark::kMillisecond)
-    ->MinTime(3.0);
+    ->Iterations(120);  // the same 120 frames (about 1.3 periods of the foot's motion) every run
 
 // 43 bundles with irregular (R2-sampled) elliptic cross-sections on a 7 x 7 grid, touching.
 struct Synthetic {

@@ -102,6 +102,9 @@ class LdlFactor {
     c_.print = 0;
   }
   ~LdlFactor() {
+    if (X_) cholmod_free_dense(&X_, &c_);
+    if (Y_) cholmod_free_dense(&Y_, &c_);
+    if (E_) cholmod_free_dense(&E_, &c_);
     if (L_) cholmod_free_factor(&L_, &c_);
     cholmod_finish(&c_);
   }
@@ -129,7 +132,8 @@ class LdlFactor {
       position_.resize(K.rows());
       for (Eigen::Index r = 0; r < K.rows(); ++r) position_[perm[r]] = static_cast<int>(r);
     }
-    return cholmod_factorize(&A, L_, &c_) && c_.status == CHOLMOD_OK && L_->minor == L_->n;
+    const bool ok = cholmod_factorize(&A, L_, &c_) && c_.status == CHOLMOD_OK && L_->minor == L_->n;
+    return ok;
   }
 
   // K += sum_j delta_j e_j e_j^T (update when all deltas > 0, downdate when all < 0).
@@ -152,7 +156,8 @@ class LdlFactor {
     return ok;
   }
 
-  // Solves K X = B in place (B: n x any columns).
+  // Solves K X = B in place (B: n x any columns). The solution and CHOLMOD's solve workspaces
+  // are kept between calls (cholmod_solve2), so a solve allocates nothing once warm.
   void solve(Eigen::MatrixXd& B) {
     cholmod_dense b{};
     b.nrow = static_cast<std::size_t>(B.rows());
@@ -162,24 +167,84 @@ class LdlFactor {
     b.x = B.data();
     b.xtype = CHOLMOD_REAL;
     b.dtype = CHOLMOD_DOUBLE;
-    cholmod_dense* X = cholmod_solve(CHOLMOD_A, L_, &b, &c_);
-    if (!X) {
+    if (!cholmod_solve2(CHOLMOD_A, L_, &b, nullptr, &X_, nullptr, &Y_, &E_, &c_) || !X_) {
       B.setConstant(std::numeric_limits<double>::quiet_NaN());
       return;
     }
-    B = Eigen::Map<const Eigen::MatrixXd>(static_cast<const double*>(X->x), B.rows(), B.cols());
-    cholmod_free_dense(&X, &c_);
+    B = Eigen::Map<const Eigen::MatrixXd>(static_cast<const double*>(X_->x), B.rows(), B.cols());
   }
 
  private:
   cholmod_common c_;
   cholmod_factor* L_ = nullptr;
+  cholmod_dense *X_ = nullptr, *Y_ = nullptr, *E_ = nullptr;  // cholmod_solve2 workspaces
   std::vector<int> position_;  // per unknown: its row in the permuted factor
+};
+
+// A spring as the local step reads it: its ends as free-particle indices of the muscle (-1: fixed)
+// and as model particle indices.
+struct LocalSpring {
+  int a = -1, b = -1;    // free index or -1
+  int pa = -1, pb = -1;  // model particle index
+  double k = 0.0, rest_length = 0.0;
+};
+
+// Anderson acceleration of a fixed-point map x -> G(x) (Walker and Ni 2011; used for projective
+// dynamics by Peng et al. 2018): the next iterate is G(x_k) - dG gamma, with gamma minimising
+// |f_k - dF gamma| over the last `window` differences of the residuals f = G(x) - x (dF) and of
+// the map's values (dG). Restarted when the residual grows (the safeguard) and at every contact
+// round (the map changes with the contacts).
+struct Anderson {
+  Eigen::MatrixXd dF, dG;  // n x window, used as a ring
+  VecX f_previous, g_previous;
+  int count = 0, next = 0;
+  bool has_previous = false;
+  double best_step = std::numeric_limits<double>::infinity();
+  void restart() {
+    count = next = 0;
+    has_previous = false;
+    best_step = std::numeric_limits<double>::infinity();
+  }
+  // x: the iterate the map was applied to, g = G(x) (both n); `step` its stopping measure.
+  // Returns the next iterate.
+  VecX calc_next(const VecX& x, const VecX& g, double step, int window) {
+    if (window <= 0) return g;
+    if (step > 2.0 * best_step) restart();  // safeguard: the mixed iterate made things worse
+    best_step = std::min(best_step, step);
+    const VecX f = g - x;
+    if (dF.rows() != f.size() || dF.cols() != window) {
+      dF.resize(f.size(), window);
+      dG.resize(f.size(), window);
+      count = next = 0;
+    }
+    if (has_previous) {
+      dF.col(next) = f - f_previous;
+      dG.col(next) = g - g_previous;
+      next = (next + 1) % window;
+      count = std::min(count + 1, window);
+    }
+    f_previous = f;
+    g_previous = g;
+    has_previous = true;
+    if (count == 0) return g;
+    const auto F = dF.leftCols(count);
+    Eigen::MatrixXd normal = F.transpose() * F;
+    normal.diagonal().array() += 1e-12 * std::max(normal.trace(), 1e-300);
+    const VecX gamma = normal.ldlt().solve(F.transpose() * f);
+    if (!gamma.allFinite()) {
+      restart();
+      return g;
+    }
+    return g - dG.leftCols(count) * gamma;
+  }
 };
 
 // One muscle's linear system: K = sum_springs k A^T A (free rows) + m/h^2 I (dynamic) + contact
 // weights on the diagonal; factorised numerically again only when those diagonal terms change.
 struct MuscleSystem {
+  std::vector<LocalSpring> springs;
+  Anderson anderson;
+  Eigen::MatrixXd plain;  // G(x) of the last iteration, free rows (nf x 3)
   SparseMatrix K_springs;
   SparseMatrix K;
   std::vector<Eigen::Index> diag;  // position of K(j, j) in K.valuePtr()
@@ -205,7 +270,7 @@ struct FibresFirstSolver::Workspace {
   std::vector<int> contact_bone;
   std::vector<Vec3> contact_target_rest, contact_normal_rest;
   std::vector<Points3> checked_at;  // per bone: last exactly tested position (bone rest frame)
-  std::vector<VecX> clearance;      // per bone: its distance to the bone then (0: inside)
+  std::vector<VecX> clearance;      // per bone: its distance to the bone then (inside: -depth)
   std::vector<MusclePair> pairs;
   std::unordered_set<long long> pair_keys;
   Points3 pair_target;           // per particle: mean pair target this iteration
@@ -234,6 +299,11 @@ FibresFirstSolver::FibresFirstSolver(const FibresFirstModel& model)
       if (a >= 0 && b >= 0) {
         t.emplace_back(std::max(a, b), std::min(a, b), -sp.stiffness);
       }
+    }
+    for (int s = model_.first_spring[mi]; s < model_.first_spring[mi + 1]; ++s) {
+      const Spring& sp = model_.springs[s];
+      sys.springs.push_back({m.free_index[sp.a - m.first_particle], m.free_index[sp.b - m.first_particle],
+                             sp.a, sp.b, sp.stiffness, sp.rest_length_m});
     }
     sys.K_springs.resize(nf, nf);
     sys.K_springs.setFromTriplets(t.begin(), t.end());  // lower triangle only
@@ -294,7 +364,8 @@ struct FrameContext {
 
 // Adds particles that entered a bone (beyond their rest depth) as contacts; returns the number
 // added and reports the deepest penetration beyond rest over all particles.
-// `checked_at` / `clearance` (per bone, per particle) cache the last exact test: a particle that
+// `checked_at` / `clearance` (per bone, per particle) cache the last exact test (clearance: the
+// distance then, minus the depth when inside): a particle that
 // was outside at distance c (bone frame) and has moved less than c since cannot be inside.
 int detect_bone_contacts(const FrameContext& c, const Points3& x, std::vector<int>& contact_bone,
                          std::vector<Vec3>& target_rest, std::vector<Vec3>& normal_rest,
@@ -313,8 +384,15 @@ int detect_bone_contacts(const FrameContext& c, const Points3& x, std::vector<in
       const Vec3 local = X_rest_now * Vec3(x.row(p).transpose());
       const double moved = (local - checked_at[b].row(p).transpose()).norm();
       if (moved < clearance[b][p]) continue;  // cannot have reached the bone
-      const ClosestPoint cp = bone.calc_closest_point(local);
+      // the surface lies within |last distance| + moved of the particle: a bounded query, and
+      // nothing within it means outside by at least that much
+      const double radius = std::abs(clearance[b][p]) + moved + 1e-9;
+      const ClosestPoint cp = bone.calc_closest_point(local, radius);
       checked_at[b].row(p) = local.transpose();
+      if (cp.triangle < 0) {
+        clearance[b][p] = radius;
+        continue;
+      }
       clearance[b][p] = cp.distance;
       const Vec3 a = mesh.V.row(mesh.F(cp.triangle, 0)), bb = mesh.V.row(mesh.F(cp.triangle, 1)),
                  cc = mesh.V.row(mesh.F(cp.triangle, 2));
@@ -324,7 +402,7 @@ int detect_bone_contacts(const FrameContext& c, const Points3& x, std::vector<in
       const bool on_face = cp.barycentric.minCoeff() > 1e-9 && face_normal.norm() > 0.0;
       const bool inside = on_face ? (local - cp.point).dot(face_normal) < 0.0 : bone.calc_is_inside(local);
       if (!inside) continue;
-      clearance[b][p] = 0.0;
+      clearance[b][p] = -cp.distance;  // inside: minus the depth (never culls)
       if (max_depth_per_muscle) {
         double& d = (*max_depth_per_muscle)[model.muscle_of[p]];
         d = std::max(d, cp.distance);
@@ -484,10 +562,12 @@ void set_pair_targets(const FibresFirstModel& model, FibresFirstSolver::Workspac
   }
 }
 
-// One local/global iteration of muscle mi from `snapshot` (all particles), written into its rows
-// of x: spring and contact targets (local), the prefactorised solve (global), then the volume
-// step along Y = -K^-1 dV/dx (Y refreshed on the first iteration of a round). Returns the largest
-// particle displacement over the mean rest spring length.
+// One local/global iteration of muscle mi from `snapshot` (all particles): spring and contact
+// targets (local), the prefactorised solve (global), then the volume step along
+// Y = -K^-1 dV/dx (Y refreshed on the first iteration of a round). This is the map G; its value is
+// kept in sys.plain. Writes the next iterate into the muscle's rows of x: G's value when the step
+// is below the tolerance (converged), else the Anderson-accelerated iterate. Returns the step: the
+// largest particle displacement |G(x) - x| over the mean rest spring length.
 double relax_muscle(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, int mi,
                     bool first_iteration, const Points3& snapshot, Points3& x, char& volume_failed) {
   const FibresFirstModel& model = ctx.model;
@@ -500,19 +580,39 @@ double relax_muscle(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
   const int base = m.first_particle;
   const bool volume = o.hold_volume && m.surface_triangles.rows() > 0;
   const bool fresh = volume && (first_iteration || sys.volume_direction.rows() != m.num_particles);
+  if (first_iteration) sys.anderson.restart();
   Eigen::MatrixXd B = Eigen::MatrixXd::Zero(nf, fresh ? 6 : 3);
+  double* bx = B.col(0).data();
+  double* by = B.col(1).data();
+  double* bz = B.col(2).data();
+  const double* sx = snapshot.col(0).data();
+  const double* sy = snapshot.col(1).data();
+  const double* sz = snapshot.col(2).data();
   // local step: every spring's rest-length vector along its current direction
-  for (int s = model.first_spring[mi]; s < model.first_spring[mi + 1]; ++s) {
-    const Spring& sp = model.springs[s];
-    const Vec3 xa = snapshot.row(sp.a), xb = snapshot.row(sp.b);
-    Vec3 d = xa - xb;
-    const double len = d.norm();
-    d = len > 1e-15 ? Vec3(d * (sp.rest_length_m / len))
-                    : Vec3((model.rest.row(sp.a) - model.rest.row(sp.b)).transpose());
-    const int a = m.free_index[sp.a - base], b = m.free_index[sp.b - base];
-    const double k = sp.stiffness;
-    if (a >= 0) B.row(a).head<3>() += (k * (b >= 0 ? d : Vec3(d + xb))).transpose();
-    if (b >= 0) B.row(b).head<3>() += (k * (a >= 0 ? Vec3(-d) : Vec3(xa - d))).transpose();
+  for (const LocalSpring& sp : sys.springs) {
+    double dx = sx[sp.pa] - sx[sp.pb], dy = sy[sp.pa] - sy[sp.pb], dz = sz[sp.pa] - sz[sp.pb];
+    const double len = std::sqrt(dx * dx + dy * dy + dz * dz);
+    if (len > 1e-15) {
+      const double scale = sp.rest_length / len;
+      dx *= scale;
+      dy *= scale;
+      dz *= scale;
+    } else {
+      dx = model.rest(sp.pa, 0) - model.rest(sp.pb, 0);
+      dy = model.rest(sp.pa, 1) - model.rest(sp.pb, 1);
+      dz = model.rest(sp.pa, 2) - model.rest(sp.pb, 2);
+    }
+    const double k = sp.k;
+    if (sp.a >= 0) {
+      bx[sp.a] += k * (sp.b >= 0 ? dx : dx + sx[sp.pb]);
+      by[sp.a] += k * (sp.b >= 0 ? dy : dy + sy[sp.pb]);
+      bz[sp.a] += k * (sp.b >= 0 ? dz : dz + sz[sp.pb]);
+    }
+    if (sp.b >= 0) {
+      bx[sp.b] += k * (sp.a >= 0 ? -dx : sx[sp.pa] - dx);
+      by[sp.b] += k * (sp.a >= 0 ? -dy : sy[sp.pa] - dy);
+      bz[sp.b] += k * (sp.a >= 0 ? -dz : sz[sp.pa] - dz);
+    }
   }
   const double mass_term = m.particle_mass_kg * ctx.mass_scale;
   for (int j = 0; j < nf; ++j) {
@@ -530,22 +630,35 @@ double relax_muscle(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
     for (int j = 0; j < nf; ++j) B.row(j).tail<3>() = g.row(m.free[j] - base);
   }
   // global step, then the volume: x = x_u + t Y with Y = -K^-1 g, t the root of V(t) = V0
-  Eigen::MatrixXd Z = std::move(B);
-  sys.factor.solve(Z);
+  sys.factor.solve(B);
   Points3 xm = snapshot.middleRows(base, m.num_particles);
-  for (int j = 0; j < nf; ++j) xm.row(m.free[j] - base) = Z.row(j).head<3>();
+  for (int j = 0; j < nf; ++j) xm.row(m.free[j] - base) = B.row(j).head<3>();
   if (fresh) {
     sys.volume_direction = Points3::Zero(m.num_particles, 3);
-    for (int j = 0; j < nf; ++j) sys.volume_direction.row(m.free[j] - base) = -Z.row(j).tail<3>();
+    for (int j = 0; j < nf; ++j) sys.volume_direction.row(m.free[j] - base) = -B.row(j).tail<3>();
   }
   if (volume) volume_failed = !std::isfinite(hold_volume_along(m, P, xm, sys.volume_direction));
-  double largest = 0.0;
+  double largest2 = 0.0;
+  sys.plain.resize(nf, 3);
+  Eigen::MatrixXd current(nf, 3);
   for (int j = 0; j < nf; ++j) {
     const int p = m.free[j];
-    largest = std::max(largest, (xm.row(p - base) - snapshot.row(p)).norm());
+    sys.plain.row(j) = xm.row(p - base);
+    current.row(j) = snapshot.row(p);
+    largest2 = std::max(largest2, (sys.plain.row(j) - current.row(j)).squaredNorm());
   }
-  x.middleRows(base, m.num_particles) = xm;
-  return largest / std::max(m.mean_spring_length_m, 1e-12);
+  const double step = std::sqrt(largest2) / std::max(m.mean_spring_length_m, 1e-12);
+  if (step < o.step_tolerance || o.anderson_window <= 0 || !std::isfinite(step)) {
+    sys.anderson.restart();
+    x.middleRows(base, m.num_particles) = xm;
+    return step;
+  }
+  const VecX next = sys.anderson.calc_next(Eigen::Map<const VecX>(current.data(), 3 * nf),
+                                           Eigen::Map<const VecX>(sys.plain.data(), 3 * nf), step,
+                                           o.anderson_window);
+  const Eigen::Map<const Eigen::MatrixXd> next_rows(next.data(), nf, 3);
+  for (int j = 0; j < nf; ++j) x.row(m.free[j]) = next_rows.row(j);
+  return step;
 }
 
 // The final projection of a frame (see the comment inside).
@@ -698,14 +811,29 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
     ++info_.contact_rounds;
     update_factors(ctx, ws, frame, info_);
 
-    // local/global iterations
+    // local/global iterations; a muscle whose step is below the tolerance rests until a muscle it
+    // touches (an active pair) moves again
+    std::vector<std::vector<int>> partners(nm);
+    for (const MusclePair& pr : ws.pairs) {
+      const int a = model.muscle_of[pr.p], b = model.muscle_of[pr.q];
+      partners[a].push_back(b);
+      partners[b].push_back(a);
+    }
+    for (auto& list : partners) {
+      std::sort(list.begin(), list.end());
+      list.erase(std::unique(list.begin(), list.end()), list.end());
+    }
+    std::vector<char> active(nm, 1), first(nm, 1);
     for (int it = 0; it < o.max_iterations; ++it) {
       ++info_.iterations;
       snapshot = x;
       set_pair_targets(model, ws, snapshot);
       parallel_for(static_cast<std::size_t>(nm), [&](std::size_t mi) {
-        steps[mi] = relax_muscle(ctx, ws, static_cast<int>(mi), it == 0, snapshot, x, volume_failed[mi]);
+        if (!active[mi]) return;
+        steps[mi] = relax_muscle(ctx, ws, static_cast<int>(mi), first[mi] != 0, snapshot, x,
+                                 volume_failed[mi]);
       });
+      std::fill(first.begin(), first.end(), 0);
       info_.residual = *std::max_element(steps.begin(), steps.end());
       if (!x.allFinite() || !std::isfinite(info_.residual)) {
         int bad = 0;
@@ -720,7 +848,22 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
                         frame_context(model.muscles[bad].name,
                                       "check the bone motions of this frame and the stiffness options"));
       }
-      if (info_.residual < o.step_tolerance) break;
+      std::vector<char> moving(nm, 0);
+      for (int mi = 0; mi < nm; ++mi) moving[mi] = active[mi] && steps[mi] >= o.step_tolerance;
+      bool any = false;
+      for (int mi = 0; mi < nm; ++mi) {
+        active[mi] = moving[mi];
+        for (int other : partners[mi]) active[mi] = active[mi] || moving[other];
+        any = any || active[mi];
+      }
+      if (!any) break;
+    }
+    // muscles stopped by max_iterations end on the map's value (volume held), not a mixed iterate
+    for (int mi = 0; mi < nm; ++mi) {
+      const FibreBundle& m = model.muscles[mi];
+      const MuscleSystem& sys = *ws.systems[mi];
+      if (steps[mi] < o.step_tolerance || sys.plain.rows() != static_cast<Eigen::Index>(m.free.size())) continue;
+      for (std::size_t j = 0; j < m.free.size(); ++j) x.row(m.free[j]) = sys.plain.row(j);
     }
     // new contacts? (after the last round, the final projection below detects them)
     if (round + 1 == o.max_contact_rounds) break;

@@ -110,9 +110,10 @@ void check_options(const FibresFirstOptions& o) {
   if (!(o.bending_stiffness >= 0.0) || !std::isfinite(o.bending_stiffness))
     throw_bad_input(fmt::format("bending stiffness must be >= 0 N/m (got {})", o.bending_stiffness));
   if (o.particles_per_fibre < 2 || o.cross_neighbours < 0 || o.max_iterations < 1 ||
-      o.max_contact_rounds < 1 || o.max_volume_iterations < 0)
+      o.max_contact_rounds < 1 || o.max_volume_iterations < 0 || o.anderson_window < 0)
     throw_bad_input("invalid fibres-first options (particles_per_fibre >= 2, cross_neighbours >= 0, "
-                "max_iterations >= 1, max_contact_rounds >= 1, max_volume_iterations >= 0)");
+                "max_iterations >= 1, max_contact_rounds >= 1, max_volume_iterations >= 0, "
+                "anderson_window >= 0)");
   if (!positive(o.density_kg_per_m3) || !positive(o.contact_weight) || !positive(o.step_tolerance) ||
       !positive(o.volume_tolerance) || !positive(o.max_volume_error) ||
       !positive(o.default_time_step_s) || !(o.damping_per_s >= 0.0) || !(o.bone_margin_m >= 0.0) ||

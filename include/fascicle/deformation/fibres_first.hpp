@@ -72,8 +72,13 @@ struct FibresFirstOptions {
   int max_contact_rounds = 4;     // solve -> detect new contacts -> solve rounds per frame
   // Local/global iterations (projective dynamics) per contact round; stop when the largest
   // particle displacement of an iteration is below step_tolerance x the mean rest spring length.
+  // A muscle stops iterating once its step is below the tolerance and no muscle it is in contact
+  // with still moves.
   int max_iterations = 20;
-  double step_tolerance = 1e-3;
+  double step_tolerance = 3e-3;
+  // Anderson acceleration of the local/global iterations: number of previous iterates mixed
+  // (0: plain projective dynamics).
+  int anderson_window = 5;
   // Dynamics (off: quasi-static equilibrium). Backward-Euler time integration of the particles
   // with velocity damping (1/s); the time step comes with each frame (default_time_step_s if 0).
   bool dynamic = false;
