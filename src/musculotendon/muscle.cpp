@@ -335,14 +335,31 @@ double calc_equilibrium_start(const Musculotendon& m, double f_slack, double dFm
                               double cos_slack, double lMT) {
   const double lTs = m.params.tendon_slack_length_m, h = m.parallelogram_height_m;
   double t1 = 1.0;  // normalised tendon length carrying f_slack
+  CurvePoint ft;    // the tendon curve there (closed forms where the inverse is exact)
   switch (m.params.model) {
     case MuscleModel::millard2012:
       t1 = m.millard.tendon_force_length.calc_inverse_estimate(f_slack);
+      ft = calc_tendon_force_length(m, t1);
       break;
-    default: t1 = calc_tendon_length_for_force(m, f_slack) / lTs; break;
+    case MuscleModel::thelen2003: {
+      const ThelenCurveConstants& k = m.thelen_constants;
+      if (f_slack >= detail::kThelenToeForce) {
+        t1 = 1.0 + k.tendon_toe_strain + (f_slack - detail::kThelenToeForce) / k.tendon_linear_stiffness;
+        ft = {f_slack, k.tendon_linear_stiffness};
+      } else if (f_slack > 0.0) {  // toe: f = c (exp(ρ x) − 1), f' = ρ (f + c)
+        t1 = 1.0 + std::log1p(f_slack / k.tendon_toe_scale) / k.tendon_toe_rate;
+        ft = {f_slack, k.tendon_toe_rate * (f_slack + k.tendon_toe_scale)};
+      }
+      break;
+    }
+    case MuscleModel::degroote2016: {  // f = c1 exp(kT (t − 1)) − c3, f' = kT (f + c3)
+      const DeGrooteCurveConstants& k = m.degroote_constants;
+      t1 = degroote_norm_tendon_length(k, f_slack);
+      ft = {f_slack, k.tendon_kT * (f_slack + detail::kDeGrooteC3)};
+      break;
+    }
   }
   double lT = lTs * t1;
-  const CurvePoint ft = calc_tendon_force_length(m, t1);
   const double k = dFmAT_dlM * cos_slack;  // normalised force per metre of tendon stretch
   const double kT = ft.derivative / lTs;
   if (kT + k > 0.0) lT -= (ft.value - f_slack + k * (lT - lTs)) / (kT + k);
@@ -444,7 +461,9 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
     at_lower = false;
     double lo = lo0, hi = hi0;
     bool lo_checked = false;
-    fv = calc_force_velocity(m, a, vN).value;
+    // fv(0) = 1 exactly for Thelen and Millard (De Groote's smooth curve is 1 only to rounding).
+    fv = (vN == 0.0 && p.model != MuscleModel::degroote2016) ? 1.0
+                                                             : calc_force_velocity(m, a, vN).value;
     fv_solved = fv;
     evaluate(last, hi, vN, fv, false);
     if (last.r <= 0.0) evaluate(last, hi, vN, fv, true);  // slack: the tendon curve at lT = lTs
