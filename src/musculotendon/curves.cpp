@@ -383,20 +383,16 @@ CurveJet SmoothSegmentedCurve::calc_jet(double x) const {
   double lo = 0.0, hi = 1.0;
   double u = guess_u(f, x, lo, hi);
   // x(u) − x, y(u) and their first three u-derivatives at u, in the power form about the
-  // nearer end (w = 1 − u flips the sign of odd derivatives).
-  const auto at = [&f, x](double v, double* X, double* Y) {
-    if (v < 0.5) {
-      X[0] = poly5(f.ax0, v) - (x - f.x0), X[1] = poly5_du(f.ax0, v);
-      X[2] = poly5_du2(f.ax0, v), X[3] = poly5_du3(f.ax0, v);
-      Y[0] = f.y0 + poly5(f.ay0, v), Y[1] = poly5_du(f.ay0, v);
-      Y[2] = poly5_du2(f.ay0, v), Y[3] = poly5_du3(f.ay0, v);
-    } else {
-      const double w = 1.0 - v;
-      X[0] = poly5(f.ax1, w) - (x - f.x5), X[1] = -poly5_du(f.ax1, w);
-      X[2] = poly5_du2(f.ax1, w), X[3] = -poly5_du3(f.ax1, w);
-      Y[0] = f.y5 + poly5(f.ay1, w), Y[1] = -poly5_du(f.ay1, w);
-      Y[2] = poly5_du2(f.ay1, w), Y[3] = -poly5_du3(f.ay1, w);
-    }
+  // nearer end (w = 1 − u flips the sign of odd derivatives); one code path for both ends.
+  const auto at = [&f, x](double v, double* X, double* Y) __attribute__((always_inline)) {
+    const bool near0 = v < 0.5;
+    const std::array<double, 6>& ax = near0 ? f.ax0 : f.ax1;
+    const std::array<double, 6>& ay = near0 ? f.ay0 : f.ay1;
+    const double w = near0 ? v : 1.0 - v, sign = near0 ? 1.0 : -1.0;
+    X[0] = poly5(ax, w) - (x - (near0 ? f.x0 : f.x5));
+    X[1] = sign * poly5_du(ax, w), X[2] = poly5_du2(ax, w), X[3] = sign * poly5_du3(ax, w);
+    Y[0] = (near0 ? f.y0 : f.y5) + poly5(ay, w);
+    Y[1] = sign * poly5_du(ay, w), Y[2] = poly5_du2(ay, w), Y[3] = sign * poly5_du3(ay, w);
   };
   double X[4], Y[4];
   at(u, X, Y);
