@@ -41,7 +41,79 @@ Points3 gather_free(const SurfaceBinding& b, const Points3& X) {
   return out;
 }
 
+Eigen::AlignedBox3d calc_padded_box(const Points3& B) {
+  Eigen::AlignedBox3d box(B.colwise().minCoeff().transpose(), B.colwise().maxCoeff().transpose());
+  const double pad = 1e-9 * box.diagonal().norm();
+  box.min().array() -= pad;
+  box.max().array() += pad;
+  return box;
+}
+
+// Winding number of `surface` at p by one ray's signed crossings (exact for closed surfaces, also
+// nested or overlapping shells); the ray vote's yes/no (0 or 1) when every ray grazes an edge.
+int calc_winding_by_ray(const MeshQuery& surface, const Vec3& p) {
+  static constexpr double kDirections[3][3] = {{0.3015113445777636, 0.4522670168666454, 0.8392497325522977},
+                                               {-0.6837634587578276, 0.5318160234783104, -0.4999999999999999},
+                                               {0.5773502691896258, -0.8017837257372732, 0.1543033499620919}};
+  for (const auto& d : kDirections)
+    if (const std::optional<int> w = surface.calc_crossing_number(p, Vec3(d[0], d[1], d[2]))) return *w;
+  return surface.calc_is_inside(p) ? 1 : 0;
+}
+
 }  // namespace
+
+VertexAdjacency make_vertex_adjacency(const Triangles& F, Eigen::Index num_vertices) {
+  VertexAdjacency g;
+  g.start.assign(static_cast<std::size_t>(num_vertices) + 1, 0);
+  g.neighbours.resize(static_cast<std::size_t>(F.rows()) * 6);
+  for (Eigen::Index f = 0; f < F.rows(); ++f)
+    for (int k = 0; k < 3; ++k) g.start[F(f, k) + 1] += 2;
+  for (Eigen::Index i = 0; i < num_vertices; ++i) g.start[i + 1] += g.start[i];
+  std::vector<int> fill(g.start.begin(), g.start.end() - 1);
+  for (Eigen::Index f = 0; f < F.rows(); ++f)
+    for (int k = 0; k < 3; ++k) {
+      const int a = F(f, k);
+      g.neighbours[fill[a]++] = F(f, (k + 1) % 3);
+      g.neighbours[fill[a]++] = F(f, (k + 2) % 3);
+    }
+  return g;
+}
+
+void propagate_winding(const Points3& P, const VertexAdjacency& graph, const MeshQuery& surface,
+                       std::vector<int>& winding) {
+  const Eigen::Index n = P.rows();
+  std::vector<int> queue;
+  queue.reserve(static_cast<std::size_t>(n));
+  for (Eigen::Index i = 0; i < n; ++i)
+    if (winding[i] >= 0) queue.push_back(static_cast<int>(i));
+  std::size_t head = 0;
+  Eigen::Index next_seed = 0;
+  for (;;) {
+    while (head < queue.size()) {
+      const int p = queue[head++];
+      const Vec3 xp = P.row(p).transpose();
+      for (int k = graph.start[p]; k < graph.start[p + 1]; ++k) {
+        const int q = graph.neighbours[k];
+        if (winding[q] >= 0) continue;
+        const Vec3 d = Vec3(P.row(q).transpose()) - xp;
+        int w = winding[p];
+        bool grazed = d.squaredNorm() == 0.0;
+        if (!grazed) {
+          for (const RayHit& h : surface.cast_ray_all(xp, d, 0.0, 1.0)) {
+            if (!(h.barycentric.minCoeff() > 1e-12) || std::abs(h.normal.dot(d)) <= 1e-12 * d.norm()) grazed = true;
+            w += h.front_facing ? 1 : -1;  // entering through a face raises the winding number
+          }
+        }
+        winding[q] = (grazed || w < 0) ? calc_winding_by_ray(surface, Vec3(P.row(q).transpose())) : w;
+        queue.push_back(q);
+      }
+    }
+    while (next_seed < n && winding[next_seed] >= 0) ++next_seed;
+    if (next_seed >= n) break;
+    winding[next_seed] = calc_winding_by_ray(surface, Vec3(P.row(next_seed).transpose()));
+    queue.push_back(static_cast<int>(next_seed));
+  }
+}
 
 // ---------------------------------------------------------------------------------------------
 // Binding
@@ -146,6 +218,8 @@ SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_act
   b.system = LtL + (options.line_weight * b.diagonal_scale) * I;
   b.system.makeCompressed();
 
+  b.adjacency = make_vertex_adjacency(rest_surface.F, n);
+
   // rest-pose depth inside every bone
   for (const MeshQuery* bone : bones) {
     if (!bone) throw_usage("null bone query", muscle_context(b.name));
@@ -220,7 +294,7 @@ SurfaceFirstSolver::SurfaceFirstSolver(const SurfaceBinding& binding, BoneQuerie
                 muscle_context(binding_.name));
   for (const MeshQuery* bone : bones_) {
     const Points3& V = bone->get_mesh().V;
-    bone_boxes_.emplace_back(V.colwise().minCoeff().transpose(), V.colwise().maxCoeff().transpose());
+    bone_boxes_.push_back(calc_padded_box(V));
   }
   Factor& f = *factor_;
   f.base.kind = f.with_contacts.kind = binding_.options.sparse_solver;
@@ -364,19 +438,31 @@ bool SurfaceFirstSolver::update_contacts(const Points3& X, const std::vector<Tra
   }
   contacts_ = std::move(kept);
 
-  // detect
+  // detect: the winding number of each bone at every vertex, propagated along the muscle's edges
+  // from the vertices that are certainly outside (moved less than their rest clearance relative
+  // to the bone, or outside its box)
   double worst = 0.0;
+  const Eigen::Index n = X.rows();
+  std::vector<int> winding(static_cast<std::size_t>(n));
   for (std::size_t k = 0; k < bones_.size(); ++k) {
     const Transform T = bone_motions.empty() ? Transform::Identity() : bone_motions[k];
     const Transform Tinv = T.inverse();
+    const Points3 P = ((X * Tinv.linear().transpose()).rowwise() + Tinv.translation().transpose()).eval();
     const Eigen::AlignedBox3d& box = bone_boxes_[k];
-    for (int i : b.free_vertices) {
-      const Vec3 p = Tinv * Vec3(X.row(i).transpose());
+    bool any_unknown = false;
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const Vec3 p = P.row(i).transpose();
       const double clearance = b.rest_bone_clearance[k][i];
-      if (clearance > 0.0 && (p - b.rest.V.row(i).transpose()).squaredNorm() < clearance * clearance)
-        continue;  // moved less than its rest distance to the bone: still outside
-      if (!box.contains(p)) continue;
-      if (!bones_[k]->calc_is_inside(p)) continue;
+      const bool outside = (clearance > 0.0 && (p - b.rest.V.row(i).transpose()).squaredNorm() < clearance * clearance) ||
+                           !box.contains(p);
+      winding[i] = outside ? 0 : -1;
+      any_unknown |= !outside;
+    }
+    if (!any_unknown) continue;
+    propagate_winding(P, b.adjacency, *bones_[k], winding);
+    for (int i : b.free_vertices) {
+      if (winding[i] <= 0) continue;
+      const Vec3 p = P.row(i).transpose();
       const ClosestPoint cp = bones_[k]->calc_closest_point(p);
       const double allowed = b.rest_bone_depth[k][i];
       const double beyond = cp.distance - allowed;
@@ -539,64 +625,11 @@ OverlapInfo calc_surface_overlap(const Points3& V, const Triangles& F, const Mes
   OverlapInfo out;
   const Eigen::Index n = V.rows();
   if (n == 0) return out;
-  // vertex adjacency (CSR; duplicates are harmless for the traversal)
-  std::vector<int> start(static_cast<std::size_t>(n) + 1, 0), adj(static_cast<std::size_t>(F.rows()) * 6);
-  for (Eigen::Index f = 0; f < F.rows(); ++f)
-    for (int k = 0; k < 3; ++k) start[F(f, k) + 1] += 2;
-  for (Eigen::Index i = 0; i < n; ++i) start[i + 1] += start[i];
-  std::vector<int> fill(start.begin(), start.end() - 1);
-  for (Eigen::Index f = 0; f < F.rows(); ++f)
-    for (int k = 0; k < 3; ++k) {
-      const int a = F(f, k);
-      adj[fill[a]++] = F(f, (k + 1) % 3);
-      adj[fill[a]++] = F(f, (k + 2) % 3);
-    }
-
-  const Points3& B = other.get_mesh().V;
-  Eigen::AlignedBox3d box(B.colwise().minCoeff().transpose(), B.colwise().maxCoeff().transpose());
-  const double pad = 1e-9 * box.diagonal().norm();
-  box.min().array() -= pad;
-  box.max().array() += pad;
-
-  // winding[i]: -1 not yet known; else the winding number of `other` at vertex i (0 or 1)
   std::vector<int> winding(static_cast<std::size_t>(n), -1);
-  std::vector<int> queue;
-  queue.reserve(static_cast<std::size_t>(n));
+  const Eigen::AlignedBox3d box = calc_padded_box(other.get_mesh().V);
   for (Eigen::Index i = 0; i < n; ++i)
-    if (!box.contains(Vec3(V.row(i).transpose()))) {
-      winding[i] = 0;
-      queue.push_back(static_cast<int>(i));
-    }
-  const auto full_vote = [&](int i) { return other.calc_is_inside(Vec3(V.row(i).transpose())) ? 1 : 0; };
-  // Breadth-first from the known vertices; a component without one is seeded by the full vote at
-  // its lowest-numbered vertex. The order depends on the input only (deterministic).
-  std::size_t head = 0;
-  Eigen::Index next_seed = 0;
-  for (;;) {
-    while (head < queue.size()) {
-      const int p = queue[head++];
-      const Vec3 xp = V.row(p).transpose();
-      for (int k = start[p]; k < start[p + 1]; ++k) {
-        const int q = adj[k];
-        if (winding[q] >= 0) continue;
-        const Vec3 d = Vec3(V.row(q).transpose()) - xp;
-        int w = winding[p];
-        bool grazed = d.squaredNorm() == 0.0;
-        if (!grazed) {
-          for (const RayHit& h : other.cast_ray_all(xp, d, 0.0, 1.0)) {
-            if (!(h.barycentric.minCoeff() > 1e-12) || std::abs(h.normal.dot(d)) <= 1e-12 * d.norm()) grazed = true;
-            w += h.front_facing ? 1 : -1;  // entering through a face raises the winding number
-          }
-        }
-        winding[q] = (grazed || w < 0 || w > 1) ? full_vote(q) : w;
-        queue.push_back(q);
-      }
-    }
-    while (next_seed < n && winding[next_seed] >= 0) ++next_seed;
-    if (next_seed >= n) break;
-    winding[next_seed] = full_vote(static_cast<int>(next_seed));
-    queue.push_back(static_cast<int>(next_seed));
-  }
+    if (!box.contains(Vec3(V.row(i).transpose()))) winding[i] = 0;
+  propagate_winding(V, make_vertex_adjacency(F, n), other, winding);
   for (Eigen::Index i = 0; i < n; ++i) {
     if (winding[i] <= 0) continue;
     ++out.vertices_inside;

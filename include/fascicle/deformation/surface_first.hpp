@@ -53,6 +53,12 @@ struct SurfaceFirstOptions {
   double max_volume_error = 1e-4;
 };
 
+// Vertex neighbours of a triangle mesh (compressed rows; a neighbour may be listed twice).
+struct VertexAdjacency {
+  std::vector<int> start;       // neighbours of i: neighbours[start[i] .. start[i+1])
+  std::vector<int> neighbours;
+};
+
 // Rest-pose binding of one muscle surface. Plain data built by bind_surface(); treat as immutable.
 struct SurfaceBinding {
   std::string name;  // muscle name, used in error messages
@@ -78,6 +84,7 @@ struct SurfaceBinding {
   // per bone, per vertex: distance to the bone at rest for vertices outside it (0 inside). A vertex
   // that has moved less than this relative to the bone cannot be inside it (exact culling).
   std::vector<VecX> rest_bone_clearance;
+  VertexAdjacency adjacency;  // of the rest surface (for inside tests by winding propagation)
 
   int num_bones() const { return static_cast<int>(rest_bone_depth.size()); }
 };
@@ -205,8 +212,18 @@ struct OverlapInfo {
 OverlapInfo calc_surface_overlap(const Points3& V, const MeshQuery& other);
 // Same result for the closed surface (V, F), much cheaper: the winding number of `other` is
 // propagated along the edges of (V, F) from vertices outside other's bounding box (winding 0), one
-// short segment crossing count per vertex; a vertex reached only through a grazing segment, or
-// whose propagated winding is not 0 or 1, is decided by the full ray vote (MeshQuery::calc_is_inside).
+// short segment crossing count per vertex (propagate_winding).
 OverlapInfo calc_surface_overlap(const Points3& V, const Triangles& F, const MeshQuery& other);
+
+VertexAdjacency make_vertex_adjacency(const Triangles& F, Eigen::Index num_vertices);
+
+// Winding numbers of the closed surface behind `surface` at the points P (vertices of a mesh with
+// adjacency `graph`). `winding` holds one entry per point: a known winding number (>= 0) or -1;
+// every -1 is replaced. Breadth-first from the known points, each new point gets its neighbour's
+// winding number plus the signed crossings of the segment between them (one short segment query);
+// a point reached through a segment that grazes an edge, or a component with no known point, gets
+// the crossings of a whole ray. The order depends on the input only (deterministic).
+void propagate_winding(const Points3& P, const VertexAdjacency& graph, const MeshQuery& surface,
+                       std::vector<int>& winding);
 
 }  // namespace fascicle
