@@ -39,7 +39,7 @@ bench: build
 # Unit tests once more under AddressSanitizer + UndefinedBehaviorSanitizer (used by .ci/run).
 asan: deps
 	cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DFASCICLE_SANITIZE=ON -DFASCICLE_BUILD_BENCH=OFF
-	cmake --build build-asan -j $(JOBS)
+	cmake --build build-asan -j $(JOBS) --target fascicle_unit_tests
 	ASAN_OPTIONS=detect_leaks=0:allocator_may_return_null=1 UBSAN_OPTIONS=print_stacktrace=1 ctest --test-dir build-asan --output-on-failure -j $(JOBS)
 
 clean:

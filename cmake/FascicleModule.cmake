@@ -37,12 +37,14 @@ function(fascicle_module name)
 endfunction()
 
 # fascicle_test(module) builds tests/<module>/*.cpp into test_<module>, linked to that module only.
+# Every such program is also a dependency of the target fascicle_unit_tests (what `make asan` builds).
 function(fascicle_test name)
   file(GLOB_RECURSE srcs CONFIGURE_DEPENDS ${CMAKE_SOURCE_DIR}/tests/${name}/*.cpp)
   if(NOT srcs)
     return()
   endif()
   add_executable(test_${name} ${srcs})
+  add_dependencies(fascicle_unit_tests test_${name})
   target_link_libraries(test_${name} PRIVATE fascicle_${name} fascicle_testsupport GTest::gtest GTest::gtest_main)
   target_compile_options(test_${name} PRIVATE ${FASCICLE_WARNINGS})
   gtest_discover_tests(test_${name} DISCOVERY_TIMEOUT 60 PROPERTIES ENVIRONMENT
