@@ -377,7 +377,6 @@ int detect_bone_contacts(const FrameContext& c, const Points3& x, std::vector<in
   for (int b = 0; b < model.num_bones(); ++b) {
     const MeshQuery& bone = *model.bones[b];
     const Transform X_rest_now = c.motions[b].inverse();
-    const TriMesh& mesh = bone.get_mesh();
     for (int p = 0; p < model.num_particles(); ++p) {
       // fixed particles follow their bone and cannot be moved: neither contacts nor measured
       if (model.role[p] == ParticleRole::fixed || model.rest_bone_depth[b][p] > 0.0) continue;
@@ -394,14 +393,8 @@ int detect_bone_contacts(const FrameContext& c, const Points3& x, std::vector<in
         continue;
       }
       clearance[b][p] = cp.distance;
-      const Vec3 a = mesh.V.row(mesh.F(cp.triangle, 0)), bb = mesh.V.row(mesh.F(cp.triangle, 1)),
-                 cc = mesh.V.row(mesh.F(cp.triangle, 2));
-      const Vec3 face_normal = (bb - a).cross(cc - a);
-      // closest point inside a face of a closed surface: the side of that face decides exactly;
-      // on an edge or a vertex, the ray-crossing test of MeshQuery does
-      const bool on_face = cp.barycentric.minCoeff() > 1e-9 && face_normal.norm() > 0.0;
-      const bool inside = on_face ? (local - cp.point).dot(face_normal) < 0.0 : bone.calc_is_inside(local);
-      if (!inside) continue;
+      Vec3 face_normal;
+      if (!detail::calc_is_behind_bone(bone, local, cp, &face_normal)) continue;
       clearance[b][p] = -cp.distance;  // inside: minus the depth (never culls)
       if (max_depth_per_muscle) {
         double& d = (*max_depth_per_muscle)[model.muscle_of[p]];

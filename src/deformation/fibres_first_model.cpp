@@ -230,16 +230,20 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
     model.muscles.push_back(std::move(m));
   }
 
-  // rest distances to the bones (clearance outside, depth inside)
+  // rest distances to the bones (clearance outside, depth inside), inside decided by the solver's
+  // own rule (detail::calc_is_behind_bone) so that rest contacts are measured as in every frame
   for (const MeshQuery* bone : bones) {
-    VecX clearance = bone->calc_distances(model.rest);
-    const InsideFlags inside = bone->calc_is_inside(model.rest);
+    const std::vector<ClosestPoint> closest = bone->calc_closest_points(model.rest);
+    VecX clearance(total);
     VecX depth = VecX::Zero(total);
-    for (int p = 0; p < total; ++p)
-      if (inside[p]) {
-        depth[p] = clearance[p];
+    for (int p = 0; p < total; ++p) {
+      clearance[p] = closest[p].distance;
+      if (closest[p].triangle >= 0 &&
+          detail::calc_is_behind_bone(*bone, model.rest.row(p).transpose(), closest[p])) {
+        depth[p] = closest[p].distance;
         clearance[p] = 0.0;
       }
+    }
     model.rest_bone_clearance.push_back(std::move(clearance));
     model.rest_bone_depth.push_back(std::move(depth));
   }
