@@ -120,22 +120,6 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
                       "time_step > 0 and settle_steps >= 1",
                       {.object = m.name});
 
-    const BSplineSolid solid = fit_rest_solid(model, m);
-    const Vec3 origin_c = model.X_ground_body_default[m.origin.body.v] * m.origin.p_body_centroid;
-    const Vec3 insertion_c = model.X_ground_body_default[m.insertion.body.v] * m.insertion.p_body_centroid;
-    // Which end layer is the origin: the one nearer the origin landmarks' centroid.
-    const auto layer_centroid = [&](int side) {
-      Vec3 c = Vec3::Zero();
-      const std::vector<int> layer = find_end_layer(solid, side);
-      for (int i : layer) c += solid.P.row(i).transpose();
-      return Vec3(c / static_cast<double>(layer.size()));
-    };
-    const Vec3 c0 = layer_centroid(0), c1 = layer_centroid(1);
-    const int origin_side = (c0 - origin_c).norm() + (c1 - insertion_c).norm() <=
-                                    (c1 - origin_c).norm() + (c0 - insertion_c).norm()
-                                ? 0
-                                : 1;
-
     SolidDynamicsSpec spec;
     spec.gravity_m_s2.setZero();  // scenes carry no gravity direction; the bones hold the muscle
     spec.density_kg_m3 = get_option(m, "density", spec.density_kg_m3);
@@ -151,11 +135,6 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
       spec.volume = VolumeMethod::penalty;
       spec.volume_stiffness_Pa = penalty;
     }
-    spec.attachments.push_back({"origin", kOriginDriver, find_end_layer(solid, origin_side)});
-    spec.attachments.push_back({"insertion", kInsertionDriver, find_end_layer(solid, 1 - origin_side)});
-    const Points3 rest_line = calc_rest_action_line(model, m);
-    ends_[0] = make_end_driver(model, m, m.origin, false, rest_line, origin_side == 0 ? c0 : c1);
-    ends_[1] = make_end_driver(model, m, m.insertion, true, rest_line, origin_side == 0 ? c1 : c0);
 
     // Bones the muscle may touch: obstacle meshes whose rest box comes within bone_margin of the
     // muscle's. Boundary points of the solid already inside a bone at rest stay exempt.
@@ -175,14 +154,46 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
         spec.contact_bones.push_back(std::move(c));
         bone_bodies_.push_back(BodyIndex{b});
       }
-    try {
-      model_ = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(solid, spec));
-    } catch (const Error& e) {
-      ErrorContext c = e.context();
-      if (c.suggestion.empty())
-        c.suggestion = "change the muscle's solid_dynamics options lattice_u, lattice_v, lattice_w or degree";
-      throw Error(e.kind(), e.message(), c);
+
+    // The solid: fitted along the origin → insertion axis, then (if that fit fails or comes out
+    // inverted somewhere) without the parameter correction, then along the mesh's long axis.
+    const Vec3 origin_c = model.X_ground_body_default[m.origin.body.v] * m.origin.p_body_centroid;
+    const Vec3 insertion_c = model.X_ground_body_default[m.insertion.body.v] * m.insertion.p_body_centroid;
+    Vec3 origin_layer = Vec3::Zero(), insertion_layer = Vec3::Zero();
+    for (int attempt = 0; attempt < 4 && !model_; ++attempt) {
+      BSplineSolid solid;
+      try {
+        solid = fit_rest_solid(model, m, attempt);
+        // Which end layer is the origin: the one nearer the origin landmarks' centroid.
+        const auto layer_centroid = [&](int side) {
+          Vec3 c = Vec3::Zero();
+          const std::vector<int> layer = find_end_layer(solid, side);
+          for (int i : layer) c += solid.P.row(i).transpose();
+          return Vec3(c / static_cast<double>(layer.size()));
+        };
+        const Vec3 c0 = layer_centroid(0), c1 = layer_centroid(1);
+        const int origin_side =
+            (c0 - origin_c).norm() + (c1 - insertion_c).norm() <= (c1 - origin_c).norm() + (c0 - insertion_c).norm() ? 0 : 1;
+        origin_layer = origin_side == 0 ? c0 : c1;
+        insertion_layer = origin_side == 0 ? c1 : c0;
+        spec.attachments = {{"origin", kOriginDriver, find_end_layer(solid, origin_side)},
+                            {"insertion", kInsertionDriver, find_end_layer(solid, 1 - origin_side)}};
+        model_ = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(solid, spec));
+      } catch (const Error& e) {
+        if (e.kind() != ErrorKind::bad_input || attempt == 3) {
+          ErrorContext c = e.context();
+          c.object = m.name;
+          if (c.suggestion.empty() || e.kind() == ErrorKind::bad_input)
+            c.suggestion = "the solid is fitted to slices of the muscle mesh (each must be one closed contour); "
+                           "try the options lattice_u, lattice_v, lattice_w, degree, slices or end_inset";
+          throw Error(e.kind(), "solid_dynamics: no valid B-spline solid for the muscle mesh: " + e.message(), c);
+        }
+        spdlog::debug("muscle '{}': solid fit {} rejected ({}); trying another", m.name, attempt, e.message());
+      }
     }
+    const Points3 rest_line = calc_rest_action_line(model, m);
+    ends_[0] = make_end_driver(model, m, m.origin, false, rest_line, origin_layer);
+    ends_[1] = make_end_driver(model, m, m.insertion, true, rest_line, insertion_layer);
     solver_options_.integrator = Integrator::backward_euler;
     solver_options_.reuse_factorisation_steps = std::max(0, options_.reuse_factorisation);
 
@@ -232,7 +243,9 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
   }
 
  private:
-  BSplineSolid fit_rest_solid(const Model& model, const Muscle& m) const {
+  // attempt 0: along the origin → insertion axis; 1: the same without the fit's parameter
+  // correction and mesh-vertex samples; 2, 3: the same two along the mesh's long axis.
+  BSplineSolid fit_rest_solid(const Model& model, const Muscle& m, int attempt) const {
     MeshFitOptions o;
     o.count = options_.lattice;
     o.degree = {std::min(options_.degree, std::min(2, o.count[0] - 1)), options_.degree,
@@ -242,28 +255,15 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
     // gives nearly collapsed end layers, badly conditioned for the dynamics.
     o.end_inset = get_option(m, "end_inset", 0.05);
     o.name = m.name;
-    o.origin = model.X_ground_body_default[m.origin.body.v] * m.origin.p_body_centroid;
-    o.insertion = model.X_ground_body_default[m.insertion.body.v] * m.insertion.p_body_centroid;
-    try {
-      return fit_solid_to_mesh(m.rest_mesh, o).solid;
-    } catch (const Error& e) {
-      if (e.kind() != ErrorKind::bad_input) throw;
-      // The origin → insertion axis may cross the belly obliquely (an insertion far along a
-      // tendon): slice along the belly's own longest axis instead.
-      spdlog::debug("muscle '{}': fitting along the origin-insertion axis failed ({}); using the mesh's long axis",
-                    m.name, e.message());
-      o.origin.reset();
-      o.insertion.reset();
-      try {
-        return fit_solid_to_mesh(m.rest_mesh, o).solid;
-      } catch (const Error& e2) {
-        ErrorContext c = e2.context();
-        c.object = m.name;
-        c.suggestion = "the solid is fitted to slices of the muscle mesh; each slice must be one closed contour "
-                       "(try the option 'slices')";
-        throw Error(e2.kind(), "solid_dynamics: cannot fit a B-spline solid to the muscle mesh: " + e2.message(), c);
-      }
+    if (attempt % 2 == 1) {
+      o.reparametrise_iterations = 0;
+      o.mesh_vertex_samples = false;
     }
+    if (attempt < 2) {
+      o.origin = model.X_ground_body_default[m.origin.body.v] * m.origin.p_body_centroid;
+      o.insertion = model.X_ground_body_default[m.insertion.body.v] * m.insertion.p_body_centroid;
+    }
+    return fit_solid_to_mesh(m.rest_mesh, o).solid;
   }
 
   EndDriver make_end_driver(const Model& model, const Muscle& m, const Attachment& att, bool from_end,
