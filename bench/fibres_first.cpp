@@ -140,6 +140,7 @@ void BM_ShankFrame(benchmark::State& state) {
 // Args: dynamic, iterations per round, contact rounds, Anderson window (0: plain projective
 // dynamics), step tolerance in units of 1e-4
 BENCHMARK(BM_ShankFrame)
+    ->Args({0, 20, 4, 5, 30})  // the defaults
     ->Args({0, 20, 4, 5, 10})
     ->Args({0, 20, 4, 0, 10})
     ->Args({0, 10, 2, 5, 30})
