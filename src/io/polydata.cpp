@@ -134,7 +134,9 @@ void write_polydata(const std::filesystem::path& path, const PolyData& data) {
     writer->SetInputData(poly);
     writer->SetDataModeToAppended();
     writer->EncodeAppendedDataOff();
-    writer->SetCompressorTypeToZLib();
+    // LZ4, not zlib: per-frame outputs are written every frame, and on a 60k-triangle bone VTK's
+    // zlib takes ~13x longer than LZ4 for files ~1.6x smaller (ParaView >= 5.5 reads both).
+    writer->SetCompressorTypeToLZ4();
     if (writer->Write() != 1 || !log.text.empty()) {
       throw_bad_input("VTK could not write the file: " + (log.text.empty() ? "unknown error" : log.text),
                       {.file = path.string(), .suggestion = "check the output folder and free space"});

@@ -1,6 +1,7 @@
 // Built-in frame writers: ParaView series, per-muscle metric tables (.sto, .csv), summary.json.
 #include "fascicle/core/atomic_file.hpp"
 #include "fascicle/core/error.hpp"
+#include "fascicle/core/parallel.hpp"
 #include "fascicle/io/polydata.hpp"
 #include "fascicle/io/table.hpp"
 #include "fascicle/io/vtk_series.hpp"
@@ -52,18 +53,35 @@ class ParaViewWriter final : public FrameWriter {
   }
 
   void write_frame(const Model& model, const State& state, int frame) override {
-    const auto write = [&](const std::string& part_name, const std::string& file, const PolyData& d) {
-      const std::string rel = frames_dir_ + "/" + file;
-      write_polydata(folder_ / rel, d);
-      series_->add(state.time_s, series_->find_or_add_part(part_name), rel);
+    // The frame's files are gathered first, written in parallel (one VTK writer per file), then
+    // listed in the series in a fixed order.
+    struct Part {
+      std::string name;
+      std::string rel;  // file, relative to the output folder
+      PolyData data;
+      bool write = true;
     };
+    std::vector<Part> parts;
+    const auto write = [&](const std::string& part_name, const std::string& file, PolyData d) {
+      parts.push_back({part_name, frames_dir_ + "/" + file, std::move(d)});
+    };
+    // A bone that has not moved since its last file is listed again with that file (a fixed
+    // shank is written once, not once per frame).
+    last_bone_pose_.resize(model.bodies.size());
     for (size_t b = 1; b < model.bodies.size(); ++b) {
       const Body& body = model.bodies[b];
       if (body.mesh.V.rows() == 0) continue;
+      const Transform& X = state.X_ground_body[b];
+      LastBonePose& last = last_bone_pose_[b];
+      if (!last.rel.empty() && last.X.matrix() == X.matrix()) {
+        parts.push_back({"bone_" + body.name, last.rel, PolyData{}, false});
+        continue;
+      }
       PolyData d;
-      d.points = transform_points(state.X_ground_body[b], body.mesh.V);
+      d.points = transform_points(X, body.mesh.V);
       d.triangles = body.mesh.F;
-      write("bone_" + body.name, frame_file("bone", body.name, frame), d);
+      write("bone_" + body.name, frame_file("bone", body.name, frame), std::move(d));
+      last = {X, parts.back().rel};
     }
     for (size_t m = 0; m < model.muscles.size(); ++m) {
       const Muscle& muscle = model.muscles[m];
@@ -121,6 +139,10 @@ class ParaViewWriter final : public FrameWriter {
         write("fibres_" + muscle.name, frame_file("fibres", muscle.name, frame), d);
       }
     }
+    parallel_for(parts.size(), [&](std::size_t i) {
+      if (parts[i].write) write_polydata(folder_ / parts[i].rel, parts[i].data);
+    });
+    for (const Part& p : parts) series_->add(state.time_s, series_->find_or_add_part(p.name), p.rel);
     // The collection lists only complete frames: rewrite it after each frame.
     series_->commit();
   }
@@ -138,6 +160,11 @@ class ParaViewWriter final : public FrameWriter {
   std::filesystem::path folder_;
   std::string frames_dir_;
   std::unique_ptr<VtkSeriesWriter> series_;
+  struct LastBonePose {
+    Transform X;
+    std::string rel;  // empty: no file yet
+  };
+  std::vector<LastBonePose> last_bone_pose_;  // by body
 };
 
 // Accumulates the metric rows; writes the table at finish() (also after a failure).

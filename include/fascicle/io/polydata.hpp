@@ -1,5 +1,5 @@
 // PolyData: points with triangles and/or polylines plus named point and cell fields, written as a
-// VTK XML PolyData file (.vtp) by VTK's own vtkXMLPolyDataWriter (binary, zlib, appended), as
+// VTK XML PolyData file (.vtp) by VTK's own vtkXMLPolyDataWriter (binary, LZ4, appended), as
 // ParaView reads it. Used for the per-frame outputs: bones, muscle surfaces, fibres, action lines.
 #pragma once
 
