@@ -206,6 +206,7 @@ struct Importer {
   OsimImportOptions options;
   OsimModel model;
   std::set<std::string> unsupported;
+  std::vector<std::string> adjusted;  // values changed on import as OpenSim does (logged)
 
   void note_unsupported(const xml_node& n) {
     const std::string name = n.attribute("name").as_string();
@@ -319,6 +320,19 @@ struct Importer {
       s.inertia << g("inertia_xx"), g("inertia_xy"), g("inertia_xz"), g("inertia_xy"),
           g("inertia_yy"), g("inertia_yz"), g("inertia_xz"), g("inertia_yz"), g("inertia_zz");
     }
+    // OpenSim (Body::getInertia) zeroes the inertia of a massless body and replaces a diagonal
+    // that violates the triangle inequality by a sphere's, |diag|/√3 on each axis, with a warning.
+    const Vec3 d = s.inertia.diagonal();
+    if (std::abs(s.mass) <= 1e-12 && !s.inertia.isZero(0.0)) {
+      s.inertia.setZero();
+      adjusted.push_back("body '" + s.name + "' is massless: inertia set to zero");
+    } else if (d.allFinite() && (d.x() + d.y() < d.z() - 1e-12 || d.x() + d.z() < d.y() - 1e-12 ||
+                                 d.y() + d.z() < d.x() - 1e-12)) {
+      s.inertia = Mat3::Identity() * (d.norm() / std::sqrt(3.0));
+      adjusted.push_back("body '" + s.name +
+                         "' has an inertia that violates the triangle inequality: replaced by a "
+                         "sphere's (as OpenSim does)");
+    }
     read_geometry(b, s.meshes);
     read_wrap_objects(b, s.name);
     return s;
@@ -365,12 +379,14 @@ struct Importer {
         {"WeldJoint", JointType::weld},     {"PinJoint", JointType::pin},
         {"SliderJoint", JointType::slider}, {"UniversalJoint", JointType::universal},
         {"BallJoint", JointType::ball},     {"FreeJoint", JointType::free},
-        {"CustomJoint", JointType::custom}};
+        {"CustomJoint", JointType::custom}, {"GimbalJoint", JointType::gimbal},
+        {"PlanarJoint", JointType::planar}, {"EllipsoidJoint", JointType::ellipsoid},
+        {"ScapulothoracicJoint", JointType::scapulothoracic}};
     const auto it = types.find(t);
     if (it == types.end())
       ctx.fail(j, fmt::format("joint type '{}' is not supported", t), s.name,
                "supported: WeldJoint, PinJoint, SliderJoint, UniversalJoint, BallJoint, FreeJoint, "
-               "CustomJoint");
+               "CustomJoint, GimbalJoint, PlanarJoint, EllipsoidJoint, ScapulothoracicJoint");
     s.type = it->second;
     if (!child_body_3x.empty()) {  // 3.x: the joint lives in its child body
       s.parent = text(j, "parent_body");
@@ -393,6 +409,23 @@ struct Importer {
                                                     : child(child(j, "CoordinateSet"), "objects");
     for (const xml_node& c : elements(coords))
       if (local_name(c) == "Coordinate") s.coordinates.push_back(read_coordinate(c));
+    if (s.type == JointType::ellipsoid)
+      s.ellipsoid_radii = vec3(ctx, j, "radii_x_y_z", Vec3::Constant(NAN), s.name);
+    if (s.type == JointType::scapulothoracic) {
+      s.ellipsoid_radii = vec3(ctx, j, "thoracic_ellipsoid_radii_x_y_z", Vec3::Constant(NAN), s.name);
+      if (const xml_node o = child(j, "scapula_winging_axis_origin")) {
+        const auto v = numbers(ctx, o, s.name);
+        if (v.size() != 2) ctx.fail(o, "<scapula_winging_axis_origin> must hold two numbers", s.name);
+        s.winging_origin = Vec2(v[0], v[1]);
+      }
+      s.winging_direction = number(ctx, j, "scapula_winging_axis_direction", 0.0, s.name);
+    }
+    if ((s.type == JointType::ellipsoid || s.type == JointType::scapulothoracic) &&
+        !(s.ellipsoid_radii.allFinite() && s.ellipsoid_radii.minCoeff() > 0.0))
+      ctx.fail(j, "the joint's ellipsoid radii are missing or not positive", s.name,
+               s.type == JointType::ellipsoid ? "give <radii_x_y_z> as three positive numbers (m)"
+                                              : "give <thoracic_ellipsoid_radii_x_y_z> as three "
+                                                "positive numbers (m)");
     if (s.type == JointType::custom) {
       const xml_node st = child(j, "SpatialTransform");
       int i = 0;
@@ -422,7 +455,8 @@ struct Importer {
         if (s.type == JointType::custom) {
           for (int a = 0; a < 3; ++a) rotates = rotates || s.spatial_transform.axes[a].coordinate == cs.name;
         } else {
-          rotates = s.type != JointType::slider && !(s.type == JointType::free && k >= 3);
+          rotates = s.type != JointType::slider && !(s.type == JointType::free && k >= 3) &&
+                    !(s.type == JointType::planar && k >= 1);
         }
         cs.motion_type = rotates ? MotionType::rotational : MotionType::translational;
       }
@@ -548,7 +582,16 @@ struct Importer {
       OsimPathActuator a;
       a.name = f.attribute("name").as_string();
       a.type = t;
-      if (is_osim_muscle_element(f)) {
+      // OpenSim accepts a rigid tendon of zero slack length (ThoracoscapularShoulderModel's
+      // SerratusAnterior_I/II); the musculotendon module requires a positive one, so such a
+      // muscle is kept as a path only and listed in the unsupported warning.
+      const bool zero_rigid_tendon = is_osim_muscle_element(f) &&
+                                     flag(f, "ignore_tendon_compliance", false) &&
+                                     number(ctx, f, "tendon_slack_length", 1.0, a.name) == 0.0;
+      if (zero_rigid_tendon) {
+        unsupported.insert(t + " '" + a.name +
+                           "' (rigid tendon of zero slack length: path only, no fibre quantities)");
+      } else if (is_osim_muscle_element(f)) {
         a.muscle = parse_osim_muscle(f, ctx.file.string());
         a.default_activation = number(ctx, f, "default_activation", 0.05, a.name);
       } else if (t != "PathActuator" && t != "PathSpring" && t != "Ligament") {
@@ -640,6 +683,7 @@ OsimModel read_osim(const std::filesystem::path& path, const OsimImportOptions& 
       spdlog::warn("{}: {} element(s) not supported and skipped: {}", path.string(),
                    im.model.unsupported.size(), list);
     }
+    for (const auto& a : im.adjusted) spdlog::warn("{}: {}", path.string(), a);
     for (const auto& mf : im.model.missing_meshes)
       spdlog::warn("{}: mesh file '{}' not found (model folder, Geometry/, geometry dirs)",
                    path.string(), mf);

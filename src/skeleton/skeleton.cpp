@@ -9,6 +9,7 @@
 #include <unordered_map>
 
 #include "fascicle/core/error.hpp"
+#include "joint_mobilizers.hpp"
 
 namespace fascicle {
 namespace {
@@ -110,12 +111,23 @@ SpatialTransformSpec standard_transform(const JointSpec& j) {
       break;
     case JointType::slider: drive(3, 0); break;
     case JointType::universal: drive(0, 0); drive(1, 1); break;
-    case JointType::ball: drive(0, 0); drive(1, 1); drive(2, 2); break;
+    case JointType::ball:
+    case JointType::gimbal: drive(0, 0); drive(1, 1); drive(2, 2); break;
+    case JointType::planar:  // rotation about z of F, translations along x and y of F
+      st.axes[0].axis = ez;
+      st.axes[1].axis = ex;
+      st.axes[2].axis = ey;
+      drive(0, 0);
+      drive(3, 1);
+      drive(4, 2);
+      break;
     case JointType::free:
       for (int i = 0; i < 6; ++i) drive(i, i);
       break;
     case JointType::weld:
-    case JointType::custom: break;
+    case JointType::custom:
+    case JointType::ellipsoid:
+    case JointType::scapulothoracic: break;
   }
   return st;
 }
@@ -126,7 +138,11 @@ int expected_coordinates(JointType type) {
     case JointType::pin:
     case JointType::slider: return 1;
     case JointType::universal: return 2;
-    case JointType::ball: return 3;
+    case JointType::ball:
+    case JointType::gimbal:
+    case JointType::planar:
+    case JointType::ellipsoid: return 3;
+    case JointType::scapulothoracic: return 4;
     case JointType::free: return 6;
     case JointType::custom: return -1;
   }
@@ -203,7 +219,7 @@ void check_transform(const Transform& X, const std::string& what, const std::str
 void add_coordinates(Skeleton::Impl& m, const JointSpec& j, int joint_index) {
   const int expected = expected_coordinates(j.type);
   if (expected >= 0 && static_cast<int>(j.coordinates.size()) != expected)
-    throw_bad_input("a " + std::string(j.type == JointType::pin ? "pin" : "") + "joint of this type needs " +
+    throw_bad_input("a joint of this type needs " +
                         std::to_string(expected) + " coordinates, got " +
                         std::to_string(j.coordinates.size()),
                     object_context(j.name));
@@ -231,6 +247,15 @@ SimTK::MobilizedBodyIndex add_mobilizer(Skeleton::Impl& m, const JointSpec& j, i
   if (j.type == JointType::weld) {
     SimTK::MobilizedBody::Weld weld(parent_mobod, X_PF, body, X_BM);
     return weld.getMobilizedBodyIndex();
+  }
+  if (j.type == JointType::ellipsoid || j.type == JointType::scapulothoracic) {
+    const Vec3& r = j.ellipsoid_radii;
+    if (!r.allFinite() || !(r.minCoeff() > 0.0))
+      throw_bad_input("the ellipsoid radii must be positive and finite",
+                      object_context(j.name, "give three positive radii (m)"));
+    if (!j.winging_origin.allFinite() || !std::isfinite(j.winging_direction))
+      throw_bad_input("the winging axis is not finite", object_context(j.name));
+    return detail::add_ellipsoid_mobilizer(*m.matter, parent_mobod, X_PF, body, X_BM, j);
   }
   SpatialTransformSpec st = j.type == JointType::custom ? j.spatial_transform : standard_transform(j);
   make_axes_independent(st, 0);

@@ -130,14 +130,14 @@ TEST(Osim, BadInputNamesFileAndLine) {
   }
   const auto joint = write("joint.osim",
                            "<OpenSimDocument Version=\"40000\">\n<Model name=\"m\">\n<JointSet><objects>\n"
-                           "<PlanarJoint name=\"p\"/>\n</objects></JointSet></Model></OpenSimDocument>\n");
+                           "<ConstantCurvatureJoint name=\"p\"/>\n</objects></JointSet></Model></OpenSimDocument>\n");
   try {
     read_osim(joint);
     FAIL();
   } catch (const Error& e) {
     EXPECT_EQ(*e.context().line, 4);
     EXPECT_EQ(e.context().object, "p");
-    EXPECT_NE(std::string(e.what()).find("PlanarJoint"), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find("ConstantCurvatureJoint"), std::string::npos);
   }
   const auto motion = write("m.mot", "x\ninDegrees=no\nendheader\ntime\tnot_a_coordinate\n0\t1\n");
   const OsimModel arm = read_osim(test::data_path("opensim/models/arm26.osim"));

@@ -6,7 +6,8 @@
 // frame A. Every joint connects a frame F fixed on the parent (X_parent_F) to a frame M fixed on the
 // child (X_child_M); the joint's motion is the transform X_F_M(q). Every joint type is a Simbody
 // MobilizedBody::FunctionBased (a Weld is a MobilizedBody::Weld), as OpenSim builds its CustomJoint,
-// so generalized speeds equal coordinate derivatives (u = q̇) and generalized forces are conjugate to
+// except the ellipsoid and scapulothoracic joints (MobilizedBody::Custom); in all of them
+// generalized speeds equal coordinate derivatives (u = q̇) and generalized forces are conjugate to
 // the coordinates: τ_i = Σ f·∂p/∂q_i.
 //
 // This header is C++17 and never includes Simbody (the module's implementation does).
@@ -68,13 +69,25 @@ struct SpatialTransformSpec {
   std::array<TransformAxisSpec, 6> axes;
 };
 
-enum class JointType { weld, pin, slider, universal, ball, free, custom };
+enum class JointType {
+  weld, pin, slider, universal, ball, free, custom,
+  gimbal, planar, ellipsoid, scapulothoracic
+};
 
 // Coordinates per type, in this order:
 //  weld: none; pin: rotation about z of F; slider: translation along x of F;
 //  universal: rotations about x, then the new y; ball: body-fixed x, y, z rotations;
 //  free: body-fixed x, y, z rotations then translations along x, y, z of F;
-//  custom: as the spatial transform names them (each name listed once in `coordinates`).
+//  custom: as the spatial transform names them (each name listed once in `coordinates`);
+//  gimbal: body-fixed x, y, z rotations (as ball); planar: rotation about z of F, then
+//  translations along x and y of F;
+//  ellipsoid: body-fixed x, y, z rotations R = Rx·Ry·Rz with M's origin at diag(radii)·(R·ẑ) on
+//  the ellipsoid `ellipsoid_radii` centred at F's origin (Simbody's Ellipsoid mobilizer);
+//  scapulothoracic: abduction, elevation, upward rotation (an ellipsoid joint on the thoracic
+//  ellipsoid `ellipsoid_radii`, given along F's axes, turned 90° about F's z) and winging about
+//  the axis of direction `winging_direction` through `winging_origin` (OpenSim's
+//  ScapulothoracicJoint, Seth et al. 2016). docs/skeleton.md has the formulas.
+// All joints use u = q̇ (generalized speeds are the coordinate derivatives).
 struct JointSpec {
   std::string name;
   JointType type = JointType::weld;
@@ -84,6 +97,9 @@ struct JointSpec {
   Transform X_child_M = Transform::Identity();
   std::vector<CoordinateSpec> coordinates;
   SpatialTransformSpec spatial_transform;      // custom joints only
+  Vec3 ellipsoid_radii = Vec3::Zero();         // m; ellipsoid and scapulothoracic joints only
+  Vec2 winging_origin = Vec2::Zero();          // m; scapulothoracic only (x, y of the joint frame)
+  double winging_direction = 0.0;              // rad; scapulothoracic only
 };
 
 // q_dependent = function(q_independent): OpenSim's CoordinateCouplerConstraint with one
