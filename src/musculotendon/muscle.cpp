@@ -8,6 +8,7 @@
 
 #include "curve_jets.hpp"
 
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -63,11 +64,31 @@ Musculotendon compile_musculotendon(const MuscleParameters& params) {
         c.concentric_slope_at_vmax = 0.0;
         c.eccentric_slope_at_vmax = 0.0;
       }
-      if (c.minimum_value != params.millard.minimum_value ||
-          m.minimum_activation != params.minimum_activation) {
-        spdlog::debug("muscle '{}': {} mode uses active-force-length minimum {} and minimum "
-                      "activation {} (as OpenSim)", params.name, damped ? "damped" : "undamped",
-                      c.minimum_value, m.minimum_activation);
+      const MillardCurveParameters& given = params.millard;
+      const bool changed = c.minimum_value != given.minimum_value ||
+                           c.concentric_slope_at_vmax != given.concentric_slope_at_vmax ||
+                           c.eccentric_slope_at_vmax != given.eccentric_slope_at_vmax ||
+                           m.minimum_activation != params.minimum_activation;
+      if (changed && !params.rigid_tendon && !damped) {
+        // Raised (clamped) values: a warning, once per compiled muscle, naming each parameter.
+        std::string what;
+        const auto note = [&](const char* name, double from, double to) {
+          if (from != to) what += fmt::format("{}{} {} -> {}", what.empty() ? "" : ", ", name, from, to);
+        };
+        note("minimum_activation", params.minimum_activation, m.minimum_activation);
+        note("active-force-length minimum_value", given.minimum_value, c.minimum_value);
+        note("force-velocity concentric_slope_at_vmax", given.concentric_slope_at_vmax,
+             c.concentric_slope_at_vmax);
+        note("force-velocity eccentric_slope_at_vmax", given.eccentric_slope_at_vmax,
+             c.eccentric_slope_at_vmax);
+        spdlog::warn("muscle '{}': Millard2012 undamped elastic-tendon mode (fiber_damping {} < "
+                     "{}) raises, as OpenSim does: {}", params.name, given.fiber_damping,
+                     kMinNonzeroDamping, what);
+      } else if (changed) {
+        // The damped (or rigid-tendon) mode's curve overrides are OpenSim's definition of that mode.
+        spdlog::debug("muscle '{}': Millard2012 {} mode uses active-force-length minimum {} and "
+                      "force-velocity slopes 0 at +-vmax (as OpenSim)", params.name,
+                      params.rigid_tendon ? "rigid-tendon" : "damped", c.minimum_value);
       }
       m.fiber_damping = damped ? c.fiber_damping : 0.0;
       m.millard_in_use = c;
@@ -450,13 +471,16 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
   // Each pass solves r(lM; vN) = 0 at a fixed fibre velocity and ends with `last` evaluated at
   // the returned fibre length (reused for the outputs). The slack end is evaluated first (a
   // non-positive error there means a slack tendon); the lower end only when Newton heads for it.
-  double vN = 0.0, lM = std::numeric_limits<double>::quiet_NaN();
+  double lM = std::numeric_limits<double>::quiet_NaN();
   double vN_solved = 0.0;  // the velocity the final fibre length was solved with
   double fv = 1.0, fv_solved = 1.0;  // fv(vN) of this pass, and of the pass that was solved
   int total_iterations = 0;
   Eval last{};
-  bool at_lower = false;
-  for (int outer = 0; outer < 60; ++outer) {
+  bool at_lower = false, have_start = false;
+  // One pass: solves r(lM; vN) = 0 at the fixed normalised fibre velocity vN, leaves `last` at the
+  // solved length and returns the fibre velocity OpenSim's stiffness-sharing rule gives there
+  // (vN itself when static or at the lower bound).
+  const auto solve_at_velocity = [&](double vN) -> double {
     vN_solved = vN;
     at_lower = false;
     double lo = lo0, hi = hi0;
@@ -470,8 +494,9 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
     if (last.r <= 0.0) {
       lM = hi;
     } else {
-      if (outer == 0) start = calc_equilibrium_start(m, last.r + last.jets.ft.value, last.dFmAT_dlM,
+      if (!have_start) start = calc_equilibrium_start(m, last.r + last.jets.ft.value, last.dFmAT_dlM,
                                                      last.g.cos_phi, lMT);
+      have_start = true;
       double x = start;  // every pass from the same start (keeps the previous passes' results)
       if (!(x > lo && x < hi)) x = 0.5 * (lo + hi);
       bool converged = false;
@@ -541,7 +566,7 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
       if (!converged) fail_numerical(m, "static equilibrium did not converge in 200 iterations");
       lM = at_lower ? lo0 : x;
     }
-    if (!moving || at_lower) break;
+    if (!moving || at_lower) return vN;
     // Velocity estimate for the next pass (from the evaluation at the solved length).
     const Eval& e = last;
     double vT = 0.0;
@@ -550,14 +575,103 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
       const double kT = e.dFt_dlT * F0;
       vT = (std::abs(kM + kT) > 1e-12 && e.g.lT > lTs) ? kM / (kM + kT) * vMT : vMT;
     }
-    const double vN_new = (vMT - vT) * e.g.cos_phi / vscale;
-    const bool done = std::abs(vN_new - vN) < 1e-13;
-    vN = vN_new;
-    if (done) break;
+    return (vMT - vT) * e.g.cos_phi / vscale;
+  };
+
+  // The velocity-dependent equilibrium is the root of G(vN) = g(vN) − vN, g being the pass above.
+  // Fixed-point iteration vN ← g(vN) first (it settles in a few passes in most states); it is
+  // stopped when it does not contract (|Δ| shrinking by less than 0.7 per pass over three passes,
+  // or 60 passes), and the root is then found by regula falsi (Illinois) with bisection on a
+  // bracket of G taken from the passes so far or from vN ∈ {0, vMT/vscale}.
+  constexpr double kVelocityTolerance = 1e-13;  // on |G|, normalised velocity
+  double v_iter = 0.0;
+  bool settled = !moving;
+  // Bracket ends: G(v_pos) = G_pos > 0 > G(v_neg) = G_neg; g_pos, g_neg are the (Illinois-scaled)
+  // values used for the regula-falsi point.
+  double v_pos = std::numeric_limits<double>::quiet_NaN(), g_pos = 0.0, G_pos = 0.0;
+  double v_neg = std::numeric_limits<double>::quiet_NaN(), g_neg = 0.0, G_neg = 0.0;
+  const auto record = [&](double v, double G) {
+    if (G > 0.0) { v_pos = v; g_pos = G_pos = G; } else { v_neg = v; g_neg = G_neg = G; }
+  };
+  double previous_step = std::numeric_limits<double>::infinity();
+  int slow_passes = 0;
+  for (int outer = 0; outer < 60; ++outer) {
+    const double v_next = solve_at_velocity(v_iter);
+    if (!moving || at_lower) { settled = true; break; }
+    const double G = v_next - v_iter;
+    if (std::abs(G) < kVelocityTolerance) { settled = true; break; }
+    if (!std::isfinite(G)) fail_numerical(m, "non-finite fibre velocity in equilibrium");
+    record(v_iter, G);
+    slow_passes = (std::abs(G) > 0.7 * previous_step) ? slow_passes + 1 : 0;
+    previous_step = std::abs(G);
+    v_iter = v_next;
+    if (slow_passes >= 3 && outer >= 5) break;
+  }
+  if (!settled) {
+    const auto state = [&] {
+      return fmt::format("a={:.17g}, lMT={:.17g} m, vMT={:.17g} m/s", a, lMT, vMT);
+    };
+    const auto probe = [&](double v) {
+      const double G = solve_at_velocity(v) - v;
+      if (!std::isfinite(G)) fail_numerical(m, "non-finite fibre velocity in equilibrium (" + state() + ")");
+      return G;
+    };
+    const double v_full = vMT / vscale;  // all of the path velocity in the fibre (cos α = 1)
+    for (double v : {0.0, v_full}) {
+      if (!std::isnan(v_pos) && !std::isnan(v_neg)) break;
+      const double G = probe(v);
+      if (at_lower || std::abs(G) < kVelocityTolerance) { settled = true; break; }
+      record(v, G);
+    }
+    if (!settled && (std::isnan(v_pos) || std::isnan(v_neg))) {
+      fail_numerical(m, "no fibre velocity satisfies OpenSim's stiffness-sharing rule (" + state() +
+                            "); the fibre and tendon stiffnesses have opposite signs");
+    }
+    int side = 0;
+    for (int it = 0; !settled && it < 200; ++it) {
+      if (std::abs(v_pos - v_neg) <= 1e-15 * std::max(std::abs(v_pos), std::abs(v_neg))) break;
+      double v = (v_neg * g_pos - v_pos * g_neg) / (g_pos - g_neg);
+      const double lo_v = std::min(v_pos, v_neg), hi_v = std::max(v_pos, v_neg);
+      if (!(v > lo_v && v < hi_v)) v = 0.5 * (v_pos + v_neg);
+      const double G = probe(v);
+      if (at_lower || std::abs(G) < kVelocityTolerance) { settled = true; break; }
+      // Illinois: halve the retained end's value when the same end is kept twice.
+      record(v, G);
+      if (G > 0.0) {
+        if (side == +1) g_neg *= 0.5;
+        side = +1;
+      } else {
+        if (side == -1) g_pos *= 0.5;
+        side = -1;
+      }
+    }
+    if (!settled) {
+      // The bracket has shrunk to rounding level without |G| < 1e-13. Either G is continuous and
+      // the rest is the inner solve's noise (its 1e-13 F0 force tolerance moves g by up to a few
+      // 1e-10 where g is steep): the better end is taken when it satisfies the rule to 1e-10.
+      // Or g jumps because the rule switches at the slack tendon (g = 0, all of vMT in the
+      // tendon, on the slack side, G = −vN exactly): no fixed point exists and the limit from
+      // the taut side is returned, where the tendon is just at its slack length and carries no
+      // force, so both sides agree on the forces. Any other jump (the fibre length leaving one
+      // branch of a non-monotone force error for another) is reported as a numerical error.
+      const bool noise = std::min(G_pos, -G_neg) <= 1e-10;
+      const bool slack_switch = (G_pos == -v_pos) != (G_neg == -v_neg);
+      if (noise || slack_switch) {
+        const double v = noise ? (G_pos < -G_neg ? v_pos : v_neg)
+                               : (G_pos == -v_pos ? v_neg : v_pos);
+        probe(v);
+        settled = true;
+      }
+    }
+    if (!settled) {
+      fail_numerical(m, fmt::format("the velocity-dependent equilibrium did not converge ({}): "
+                                    "OpenSim's stiffness-sharing rule g(vN) jumps past vN between "
+                                    "vN = {:.17g} (g − vN = {:.3g}) and {:.17g} (g − vN = {:.3g}) "
+                                    "vmax", state(), v_neg, G_neg, v_pos, G_pos));
+    }
   }
   if (!std::isfinite(lM)) fail_numerical(m, "static equilibrium produced a non-finite fibre length");
-  // OpenSim's stiffness-sharing heuristic is discontinuous where the tendon goes slack, so the
-  // fixed point may not settle; the outputs always use the velocity the length was solved with.
+  // The outputs use the velocity the length was solved with (|G| < 1e-13 there).
   double vM = vN_solved * vscale;
   if (at_lower && vM < 0.0) vM = 0.0;
   const double fv_known = (vM == vN_solved * vscale) ? fv_solved : MuscleOutputs::nan;

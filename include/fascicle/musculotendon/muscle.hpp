@@ -28,7 +28,9 @@ struct Musculotendon {
 
 // Validates and compiles. Millard: damping ≥ 0.001 (or rigid tendon) → fal minimum 0, F-V slopes at
 // ±vmax 0, a_min ≥ 0; undamped elastic → a_min ≥ 0.01, fal minimum ≥ 0.1, F-V end slopes ≥ 0.1
-// (exactly as OpenSim's Millard2012EquilibriumMuscle::buildMuscle; logged at debug level).
+// (exactly as OpenSim's Millard2012EquilibriumMuscle::buildMuscle). Values raised in the undamped
+// mode are logged once per call with spdlog::warn naming the muscle, each parameter and its old
+// and new value; the damped-mode overrides (OpenSim's definition of that mode) at debug level.
 Musculotendon compile_musculotendon(const MuscleParameters& params);
 
 // Normalised curves of the compiled model (F-V takes activation: Thelen's depends on it).
@@ -81,8 +83,12 @@ struct MuscleOutputs {
 // lengthening speed vMT. The fibre velocity is zero when |vMT| is negligible; otherwise it is the
 // share of vMT given by the relative fibre/tendon stiffness (Thelen/Millard, as OpenSim) or the
 // tendon velocity is zero (DeGroote). Rigid tendon: closed form. Bracketed, safeguarded Newton
-// on [min fibre length, fibre length with a slack tendon]; throws fascicle::Error (numerical,
-// naming the muscle) rather than returning NaN.
+// on [min fibre length, fibre length with a slack tendon]; with vMT ≠ 0 the fibre velocity is the
+// root of g(vN) − vN (g: the stiffness-sharing rule at the length solved for vN), by fixed-point
+// iteration then bracketed regula falsi, to |g − vN| < 1e-13 vmax. Where the rule switches at the
+// slack tendon (no fixed point), the taut-side limit (tendon just slack) is returned. Throws
+// fascicle::Error (numerical, naming the muscle and the state) rather than returning NaN or a
+// velocity that is not a fixed point.
 struct EquilibriumOptions {
   bool energies = true;  // false: skip the elastic energies (fields left NaN), ~10 % faster
 };
