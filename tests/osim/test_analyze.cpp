@@ -108,8 +108,7 @@ TEST_P(MomentArms, EqualCentralDifferencesOfLength) {
   std::string worst;
   int checks = 0, skipped = 0, non_geodesic = 0;
   double non_geodesic_err = 0;
-  // Wraps over non-spherical ellipsoids (and tori) are central sections, not shortest paths, so
-  // the generalized-force moment arm is not −dL/dq there (docs/paths.md, known limit).
+  // Wraps over non-spherical ellipsoids (and tori) are not shortest paths: counted apart.
   auto is_geodesic = [&](const PathResult& pr) {
     const CompiledPath& cp = model.paths.paths[current_path];
     for (std::size_t w = 0; w < pr.wraps.size(); ++w) {
@@ -172,9 +171,9 @@ TEST_P(MomentArms, EqualCentralDifferencesOfLength) {
                 non_geodesic, non_geodesic_err);
   EXPECT_GE(checks, mc.min_checks);
   EXPECT_LT(max_err, 1e-6) << worst;
-  // Not a tolerance of the exact method: the size of the known central-section approximation on
-  // arm26 (about 0.5 mm), kept so that a regression shows.
-  EXPECT_LT(non_geodesic_err, 1e-3);
+  // Over non-spherical ellipsoids the wrap piece is differentiated as the central-section length
+  // it is (path module), so r = −dL/dq there too (was 5.5e-4 m on arm26 before).
+  EXPECT_LT(non_geodesic_err, 1e-6);
 }
 
 INSTANTIATE_TEST_SUITE_P(
