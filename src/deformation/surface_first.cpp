@@ -79,8 +79,13 @@ VertexAdjacency make_vertex_adjacency(const Triangles& F, Eigen::Index num_verti
   return g;
 }
 
-void propagate_winding(const Points3& P, const VertexAdjacency& graph, const MeshQuery& surface,
-                       std::vector<int>& winding) {
+bool propagate_winding(const Points3& P, const VertexAdjacency& graph, const MeshQuery& surface,
+                       std::vector<int>& winding, int max_whole_rays) {
+  int whole_rays = 0;
+  const auto whole_ray = [&](int i) {
+    ++whole_rays;
+    return calc_winding_by_ray(surface, Vec3(P.row(i).transpose()));
+  };
   const Eigen::Index n = P.rows();
   std::vector<int> queue;
   queue.reserve(static_cast<std::size_t>(n));
@@ -104,15 +109,18 @@ void propagate_winding(const Points3& P, const VertexAdjacency& graph, const Mes
             w += h.front_facing ? 1 : -1;  // entering through a face raises the winding number
           }
         }
-        winding[q] = (grazed || w < 0) ? calc_winding_by_ray(surface, Vec3(P.row(q).transpose())) : w;
+        winding[q] = (grazed || w < 0) ? whole_ray(q) : w;
         queue.push_back(q);
+        if (max_whole_rays >= 0 && whole_rays > max_whole_rays) return false;
       }
     }
     while (next_seed < n && winding[next_seed] >= 0) ++next_seed;
     if (next_seed >= n) break;
-    winding[next_seed] = calc_winding_by_ray(surface, Vec3(P.row(next_seed).transpose()));
+    winding[next_seed] = whole_ray(static_cast<int>(next_seed));
     queue.push_back(static_cast<int>(next_seed));
+    if (max_whole_rays >= 0 && whole_rays > max_whole_rays) return false;
   }
+  return true;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -629,7 +637,9 @@ OverlapInfo calc_surface_overlap(const Points3& V, const Triangles& F, const Mes
   const Eigen::AlignedBox3d box = calc_padded_box(other.get_mesh().V);
   for (Eigen::Index i = 0; i < n; ++i)
     if (!box.contains(Vec3(V.row(i).transpose()))) winding[i] = 0;
-  propagate_winding(V, make_vertex_adjacency(F, n), other, winding);
+  const int max_whole_rays = std::max(64, static_cast<int>(n / 16));
+  if (!propagate_winding(V, make_vertex_adjacency(F, n), other, winding, max_whole_rays))
+    return calc_surface_overlap(V, other);
   for (Eigen::Index i = 0; i < n; ++i) {
     if (winding[i] <= 0) continue;
     ++out.vertices_inside;

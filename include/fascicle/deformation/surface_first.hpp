@@ -212,7 +212,8 @@ struct OverlapInfo {
 OverlapInfo calc_surface_overlap(const Points3& V, const MeshQuery& other);
 // Same result for the closed surface (V, F), much cheaper: the winding number of `other` is
 // propagated along the edges of (V, F) from vertices outside other's bounding box (winding 0), one
-// short segment crossing count per vertex (propagate_winding).
+// short segment crossing count per vertex (propagate_winding). When more than 1/16 of the vertices
+// need a whole ray (a crumpled or inside-out surface), it falls back to the per-vertex vote.
 OverlapInfo calc_surface_overlap(const Points3& V, const Triangles& F, const MeshQuery& other);
 
 VertexAdjacency make_vertex_adjacency(const Triangles& F, Eigen::Index num_vertices);
@@ -223,7 +224,10 @@ VertexAdjacency make_vertex_adjacency(const Triangles& F, Eigen::Index num_verti
 // winding number plus the signed crossings of the segment between them (one short segment query);
 // a point reached through a segment that grazes an edge, or a component with no known point, gets
 // the crossings of a whole ray. The order depends on the input only (deterministic).
-void propagate_winding(const Points3& P, const VertexAdjacency& graph, const MeshQuery& surface,
-                       std::vector<int>& winding);
+// max_whole_rays >= 0 bounds the number of whole-ray fallbacks: past it the function stops and
+// returns false (winding is then incomplete). Crumpled or inside-out surfaces make most points
+// fall back, and then a per-point vote (MeshQuery::calc_is_inside) is cheaper.
+bool propagate_winding(const Points3& P, const VertexAdjacency& graph, const MeshQuery& surface,
+                       std::vector<int>& winding, int max_whole_rays = -1);
 
 }  // namespace fascicle
