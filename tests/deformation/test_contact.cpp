@@ -148,5 +148,29 @@ TEST(SurfaceFirstContact, OverlapByPropagationEqualsRayVote) {
   EXPECT_LT(thin.vertices_inside, cases[4].first.V.rows() - 100);
 }
 
+// An inside-out `other` makes every crossing count negative: the walk gives up after its budget
+// of whole rays and the overlap falls back to the per-vertex vote (same answer, bounded cost).
+TEST(SurfaceFirstContact, OverlapAgainstInsideOutSurfaceFallsBackToTheVote) {
+  const TriMesh a = make_icosphere(0.02, 4);
+  TriMesh b = make_icosphere(0.02, 3);
+  b.V.col(0).array() += 0.01;
+  b.F.col(1).swap(b.F.col(2));  // inward normals
+  const MeshQuery qb(b);
+  std::vector<int> winding(static_cast<std::size_t>(a.V.rows()), -1);
+  for (Eigen::Index i = 0; i < a.V.rows(); ++i)
+    if (a.V(i, 0) < -0.015) winding[i] = 0;  // left of b's box
+  EXPECT_FALSE(propagate_winding(a.V, make_vertex_adjacency(a.F, a.V.rows()), qb, winding, 64));
+  const OverlapInfo vote = calc_surface_overlap(a.V, qb);
+  const OverlapInfo walk = calc_surface_overlap(a.V, a.F, qb);
+  EXPECT_EQ(walk.vertices_inside, vote.vertices_inside);
+  EXPECT_EQ(walk.max_depth_m, vote.max_depth_m);
+  // The same surface the right way out needs no fallback.
+  b.F.col(1).swap(b.F.col(2));
+  std::fill(winding.begin(), winding.end(), -1);
+  for (Eigen::Index i = 0; i < a.V.rows(); ++i)
+    if (a.V(i, 0) < -0.015) winding[i] = 0;
+  EXPECT_TRUE(propagate_winding(a.V, make_vertex_adjacency(a.F, a.V.rows()), MeshQuery(b), winding, 64));
+}
+
 }  // namespace
 }  // namespace fascicle
