@@ -609,6 +609,15 @@ Vec3 calc_station_velocity(const Skeleton& skeleton, const SkeletonState& s, int
                       .findStationVelocityInGround(s.impl().state, to_simtk(p_body)));
 }
 
+Vec3 calc_station_bias_acceleration(const Skeleton& skeleton, const SkeletonState& s, int body,
+                                    const Vec3& p_body) {
+  if (s.stage() < SkeletonStage::velocity)
+    throw_usage("calc_station_bias_acceleration needs calc_velocity");
+  const Skeleton::Impl& m = skeleton.impl();
+  return to_eigen(m.matter->calcBiasForStationJacobian(s.impl().state, m.mobod.at(body),
+                                                       to_simtk(p_body)));
+}
+
 VecX calc_generalized_forces(const Skeleton& skeleton, const SkeletonState& s,
                              const std::vector<PointForce>& forces, VecX* uncoupled) {
   if (s.stage() < SkeletonStage::pose) throw_usage("calc_generalized_forces needs a posed state");

@@ -1,7 +1,7 @@
 // Ellipsoid, scapulothoracic, gimbal and planar joints: body transforms against an independent
 // evaluation of the formulas (Eigen angle-axis products), the surface constraint of the ellipsoid,
-// body Jacobians and station velocities against central differences, and generalized forces
-// (u = q̇) against finite differences of the work of a point force.
+// body Jacobians, station velocities and bias accelerations (Ḣ) against central differences, and
+// generalized forces (u = q̇) against finite differences of the work of a point force.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -177,6 +177,34 @@ TEST_P(EllipsoidJoints, JacobiansVelocitiesAndGeneralizedForcesMatchFiniteDiffer
   }
   calc_velocity(sk, qdot, state);
   EXPECT_LT((calc_station_velocity(sk, state, scap, station) - v_fd).norm(), 1e-8);
+}
+
+// Ḣ (the mobilizers' multiplyByHDot*): the station bias acceleration J̇·q̇ equals the central
+// difference of the station velocity J(q)·q̇ along q̇.
+TEST_P(EllipsoidJoints, BiasAccelerationMatchesFiniteDifferenceOfVelocity) {
+  const SkeletonSpec spec = make_spec(GetParam());
+  const Skeleton sk = compile(spec);
+  const int nc = sk.num_coordinates();
+  const int scap = sk.find_body("scapula");
+  const Vec3 station(0.02, -0.01, 0.04);
+  VecX q(nc), qdot(nc);
+  for (int i = 0; i < nc; ++i) {
+    q[i] = 0.3 + 0.2 * i;
+    qdot[i] = 0.7 - 0.4 * i;
+  }
+  SkeletonState state(sk), plus(sk), minus(sk);
+  calc_pose(sk, q, state);
+  calc_velocity(sk, qdot, state);
+  const double h = 1e-6;
+  calc_pose(sk, q + h * qdot, plus);
+  calc_velocity(sk, qdot, plus);
+  calc_pose(sk, q - h * qdot, minus);
+  calc_velocity(sk, qdot, minus);
+  const Vec3 fd = (calc_station_velocity(sk, plus, scap, station) -
+                   calc_station_velocity(sk, minus, scap, station)) / (2 * h);
+  const Vec3 bias = calc_station_bias_acceleration(sk, state, scap, station);
+  EXPECT_GT(bias.norm(), 1e-3);
+  EXPECT_LT((bias - fd).norm(), 1e-7);
 }
 
 INSTANTIATE_TEST_SUITE_P(Joints, EllipsoidJoints,

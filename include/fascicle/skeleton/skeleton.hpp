@@ -227,6 +227,12 @@ Vec3 calc_station_location(const SkeletonState& state, int body, const Vec3& p_b
 Vec3 calc_station_velocity(const Skeleton& skeleton, const SkeletonState& state, int body,
                            const Vec3& p_body);
 
+// Requires stage() >= velocity. The acceleration (m/s², in ground) of a station fixed on a body
+// when every q̈ is zero: J̇·q̇, the velocity-product ("bias") term of the station's acceleration
+// (Simbody's calcBiasForStationJacobian; coupler constraints are not applied here).
+Vec3 calc_station_bias_acceleration(const Skeleton& skeleton, const SkeletonState& state, int body,
+                                    const Vec3& p_body);
+
 // A force f_ground (N, ground axes) applied at station p_body of a body.
 struct PointForce {
   int body = 0;
