@@ -52,17 +52,6 @@ SparseMatrix calc_laplacian(const TriMesh& mesh, LaplacianKind kind) {
   return L;
 }
 
-double calc_enclosed_volume(const Points3& V, const Triangles& F, const Vec3& origin) {
-  double sum = 0.0;
-  for (Eigen::Index f = 0; f < F.rows(); ++f) {
-    const Vec3 a = V.row(F(f, 0)).transpose() - origin;
-    const Vec3 b = V.row(F(f, 1)).transpose() - origin;
-    const Vec3 c = V.row(F(f, 2)).transpose() - origin;
-    sum += a.dot(b.cross(c));
-  }
-  return sum / 6.0;
-}
-
 Points3 calc_volume_gradient(const Points3& V, const Triangles& F) {
   Points3 G = Points3::Zero(V.rows(), 3);
   for (Eigen::Index f = 0; f < F.rows(); ++f) {

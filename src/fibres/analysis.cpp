@@ -16,15 +16,6 @@
 
 namespace fascicle {
 
-double calc_enclosed_volume(const TriMesh& mesh) {
-  double v = 0.0;
-  for (Eigen::Index f = 0; f < mesh.num_faces(); ++f)
-    v += Vec3(mesh.V.row(mesh.F(f, 0)))
-             .dot(Vec3(mesh.V.row(mesh.F(f, 1))).cross(Vec3(mesh.V.row(mesh.F(f, 2))))) /
-         6.0;
-  return v;
-}
-
 namespace {
 
 double angle_between_lines(const Vec3& a, const Vec3& b) {

@@ -113,4 +113,20 @@ MassProperties calc_mass_properties(const TriMesh& mesh, double density) {
   return mp;
 }
 
+double calc_enclosed_volume(const Points3& V, const Triangles& F, const Vec3& origin) {
+  double sum = 0.0;
+  for (Eigen::Index f = 0; f < F.rows(); ++f) {
+    const Vec3 a = V.row(F(f, 0)).transpose() - origin;
+    const Vec3 b = V.row(F(f, 1)).transpose() - origin;
+    const Vec3 c = V.row(F(f, 2)).transpose() - origin;
+    sum += a.dot(b.cross(c));
+  }
+  return sum / 6.0;
+}
+
+double calc_enclosed_volume(const TriMesh& mesh) {
+  if (mesh.V.rows() == 0) return 0.0;
+  return calc_enclosed_volume(mesh.V, mesh.F, mesh.V.colwise().mean().transpose());
+}
+
 }  // namespace fascicle

@@ -191,6 +191,10 @@ const char* get_joint_type_name(JointType type) {
     case JointType::ball: return "ball";
     case JointType::free: return "free";
     case JointType::custom: return "custom";
+    case JointType::gimbal: return "gimbal";
+    case JointType::planar: return "planar";
+    case JointType::ellipsoid: return "ellipsoid";
+    case JointType::scapulothoracic: return "scapulothoracic";
   }
   return "custom";
 }

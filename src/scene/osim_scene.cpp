@@ -3,6 +3,7 @@
 
 #include "fascicle/core/error.hpp"
 #include "fascicle/deformation/framed_line.hpp"
+#include "fascicle/geometry/mass_properties.hpp"
 #include "fascicle/geometry/mesh_validation.hpp"
 #include "fascicle/io/mesh_io.hpp"
 #include "fascicle/path/path_model.hpp"
@@ -18,13 +19,6 @@
 
 namespace fascicle {
 namespace {
-
-double calc_enclosed_volume(const Points3& V, const Triangles& F) {
-  double six_v = 0.0;
-  for (Eigen::Index t = 0; t < F.rows(); ++t)
-    six_v += V.row(F(t, 0)).dot(V.row(F(t, 1)).cross(V.row(F(t, 2))));
-  return six_v / 6.0;
-}
 
 std::string get_model_name(MuscleModel m) { return to_string(m); }
 
@@ -98,7 +92,8 @@ GeneratedBelly make_fusiform_belly(const Points3& centreline, double volume_m3, 
       mesh.F.row(f++) << a + j, b + j1, b + j;
     }
   }
-  const auto volume_at = [&](double R) { return calc_enclosed_volume((C + R * D).eval(), mesh.F); };
+  const Vec3 centre = C.colwise().mean().transpose();
+  const auto volume_at = [&](double R) { return calc_enclosed_volume((C + R * D).eval(), mesh.F, centre); };
   // Orientation: frames are right-handed (x tangent), so the fan above winds outward; check anyway.
   if (volume_at(1.0) < 0.0) mesh.F.col(1).swap(mesh.F.col(2));
   // V(R) is a cubic in R (a quadratic for a straight line): Newton from the straight-line value.

@@ -1,5 +1,6 @@
 // Built-in muscle representations: "blended_surface" (interim deformation) and "action_line".
 #include "fascicle/core/error.hpp"
+#include "fascicle/geometry/mass_properties.hpp"
 #include "fascicle/scene/builtins.hpp"
 #include "fascicle/scene/model.hpp"
 #include "fascicle/scene/state.hpp"
@@ -8,16 +9,6 @@
 
 namespace fascicle {
 namespace {
-
-// Enclosed volume of a closed, outward-oriented surface (divergence theorem).
-double calc_enclosed_volume(const Points3& V, const Triangles& F) {
-  double six_v = 0.0;
-  for (Eigen::Index t = 0; t < F.rows(); ++t) {
-    const Vec3 a = V.row(F(t, 0)), b = V.row(F(t, 1)), c = V.row(F(t, 2));
-    six_v += a.dot(b.cross(c));
-  }
-  return six_v / 6.0;
-}
 
 // The rest-pose action line of a muscle (ground) and the bodies its points move with.
 struct RestLine {
@@ -116,7 +107,7 @@ class BlendedSurface final : public MuscleRepresentation {
     if (!out.surface.allFinite()) throw_numerical("blended surface has non-finite vertices");
     out.fibres.resize(fibres_.size());
     for (size_t k = 0; k < fibres_.size(); ++k) apply_bindings(m.rest_fibres[k], fibres_[k], T, out.fibres[k]);
-    out.volume_m3 = calc_enclosed_volume(out.surface, m.rest_mesh.F);
+    out.volume_m3 = calc_enclosed_volume(out.surface, m.rest_mesh.F, out.surface.colwise().mean().transpose());
     out.relative_volume_change = out.volume_m3 / m.rest_volume_m3 - 1.0;
   }
 

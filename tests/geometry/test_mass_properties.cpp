@@ -110,5 +110,18 @@ TEST(MassProperties, InwardMeshHasNegativeVolumeAndBadInputThrows) {
   EXPECT_THROW(calc_mass_properties(TriMesh{}), Error);
 }
 
+TEST(EnclosedVolume, BoxAnyOriginAndOrientation) {
+  TriMesh box = make_box(Vec3(0.1, 0.2, 0.3));
+  box.V.rowwise() += Vec3(120.0, -40.0, 7.0).transpose();  // far from the coordinate origin
+  const double exact = 8 * 0.1 * 0.2 * 0.3;
+  // 1e-13: the translated corners themselves are rounded (ulp(120) ≈ 1.4e-14)
+  EXPECT_NEAR(calc_enclosed_volume(box), exact, 1e-13);
+  EXPECT_NEAR(calc_enclosed_volume(box.V, box.F, Vec3(120.0, -40.0, 7.0)), exact, 1e-13);
+  EXPECT_NEAR(calc_enclosed_volume(box.V, box.F, Vec3::Zero()), exact, 1e-9);  // digits lost, not the value
+  box.F.col(1).swap(box.F.col(2));
+  EXPECT_NEAR(calc_enclosed_volume(box), -exact, 1e-13);
+  EXPECT_EQ(calc_enclosed_volume(TriMesh{}), 0.0);
+}
+
 }  // namespace
 }  // namespace fascicle

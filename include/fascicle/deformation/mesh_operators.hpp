@@ -3,6 +3,7 @@
 // volume along a straight line in configuration space (a cubic polynomial).
 #pragma once
 
+#include "fascicle/geometry/mass_properties.hpp"
 #include "fascicle/geometry/tri_mesh.hpp"
 
 #include <Eigen/SparseCore>
@@ -27,9 +28,7 @@ enum class LaplacianKind {
 // (bad input) for out-of-range indices.
 SparseMatrix calc_laplacian(const TriMesh& mesh, LaplacianKind kind);
 
-// Signed enclosed volume (positive for outward normals): V = 1/6 sum_f a . (b x c), with
-// coordinates taken relative to `origin` (any point; choose one near the mesh for accuracy).
-double calc_enclosed_volume(const Points3& V, const Triangles& F, const Vec3& origin);
+// calc_enclosed_volume(V, F, origin): geometry/mass_properties.hpp.
 
 // dV/dx_i = 1/6 sum over faces (i, j, k) containing i, in their cyclic order, of x_j x x_k
 // (#V x 3); equal to one third of the area-weighted outward normals.

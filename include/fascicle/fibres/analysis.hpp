@@ -4,6 +4,7 @@
 #pragma once
 
 #include "fascicle/fibres/attachment.hpp"
+#include "fascicle/geometry/mass_properties.hpp"
 #include "fascicle/fibres/fibre_set.hpp"
 
 #include <filesystem>
@@ -41,8 +42,7 @@ struct FibreAnalysis {
 FibreAnalysis analyse_fibres(const TriMesh& muscle, const Attachments& areas,
                              const FibreSet& fibres, int volume_samples = 20000);
 
-// Enclosed volume of a closed, outward-oriented surface (m^3).
-double calc_enclosed_volume(const TriMesh& mesh);
+// calc_enclosed_volume(mesh): geometry/mass_properties.hpp.
 
 // Fibre direction vs DTI: for the midpoint of every tract segment, the angle (rad, in [0, pi/2],
 // sign of direction ignored) between the segment and the nearest fibre segment.

@@ -28,4 +28,11 @@ struct MassProperties {
 // an empty mesh or zero volume.
 MassProperties calc_mass_properties(const TriMesh& mesh, double density_kg_per_m3 = 1.0);
 
+// Signed enclosed volume (positive for outward normals) by the divergence theorem:
+// V = 1/6 sum_f a . (b x c), coordinates relative to `origin` (any point; one near the mesh keeps
+// digits far from the coordinate origin). No checks: the fast form for per-frame use.
+double calc_enclosed_volume(const Points3& V, const Triangles& F, const Vec3& origin);
+// The same about the mesh's vertex mean.
+double calc_enclosed_volume(const TriMesh& mesh);
+
 }  // namespace fascicle
