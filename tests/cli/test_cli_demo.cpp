@@ -21,9 +21,7 @@ using namespace fascicle;
 namespace {
 
 int run_cli(const std::string& args) {
-  const std::string cmd = std::string(FASCICLE_CLI_PATH) + " " + args + " > /dev/null 2>&1";
-  const int status = std::system(cmd.c_str());
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return test::run_command(std::string(FASCICLE_CLI_PATH) + " " + args + " > /dev/null 2>&1").exit_code;
 }
 
 }  // namespace

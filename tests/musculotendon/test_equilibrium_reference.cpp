@@ -12,6 +12,7 @@
 #include "fascicle/musculotendon/osim_parameters.hpp"
 
 #include "moving_residual.hpp"
+#include "osim_muscles.hpp"
 #include "test_support.hpp"
 
 #include <gtest/gtest.h>
@@ -28,16 +29,7 @@ using namespace fascicle;
 
 namespace {
 std::vector<Musculotendon> load_gait2392(const std::string& file) {
-  const std::string path = fascicle::test::data_path("opensim/models/" + file).string();
-  pugi::xml_document doc;
-  EXPECT_TRUE(doc.load_file(path.c_str()));
-  std::vector<Musculotendon> out;
-  for (const pugi::xpath_node& x : doc.select_nodes("//*[@name]")) {
-    if (is_osim_muscle_element(x.node())) {
-      out.push_back(compile_musculotendon(parse_osim_muscle(x.node(), path)));
-    }
-  }
-  return out;
+  return fascicle::test::load_osim_musculotendons(file);
 }
 
 Musculotendon synthetic(const std::string& tag) {
