@@ -18,6 +18,12 @@ double get_option(const Muscle& m, const std::string& key, double fallback) {
   return it == m.options.end() ? fallback : it->second;
 }
 
+void require_muscle_mesh(const Muscle& m, const std::string& representation) {
+  if (m.rest_mesh.V.rows() == 0)
+    throw_bad_input("representation '" + representation + "' needs a muscle mesh",
+                    {.object = m.name, .suggestion = "give the muscle a mesh, or use 'action_line'"});
+}
+
 // Rigid motion of body b from the default pose: X_ground_b(now) · X_ground_b(default)⁻¹.
 Transform calc_body_motion(const Model& model, const State& state, BodyIndex b) {
   return state.X_ground_body[b.v] * model.X_ground_body_default[b.v].inverse();

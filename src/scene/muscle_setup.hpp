@@ -12,6 +12,8 @@ namespace fascicle::scene_detail {
 
 // A representation option of the muscle (scene "options"), or `fallback`.
 double get_option(const Muscle& m, const std::string& key, double fallback);
+// Throws bad input naming the muscle when it has no surface mesh (volumetric representations).
+void require_muscle_mesh(const Muscle& m, const std::string& representation);
 // Rigid motion of body b from the default pose: X_ground_b(now) · X_ground_b(default)⁻¹.
 Transform calc_body_motion(const Model& model, const State& state, BodyIndex b);
 // Rest surface vertices within the attachment's radius of its landmarks (ground, default pose).

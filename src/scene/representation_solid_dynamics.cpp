@@ -104,9 +104,7 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
  public:
   SolidDynamicsRepresentation(const Model& model, MuscleIndex mi) {
     const Muscle& m = model.get_muscle(mi);
-    if (m.rest_mesh.V.rows() == 0)
-      throw_bad_input("representation 'solid_dynamics' needs a muscle mesh",
-                      {.object = m.name, .suggestion = "give the muscle a mesh, or use 'action_line'"});
+    require_muscle_mesh(m, "solid_dynamics");
     options_.lattice = {static_cast<int>(get_option(m, "lattice_u", 3)), static_cast<int>(get_option(m, "lattice_v", 8)),
                         static_cast<int>(get_option(m, "lattice_w", 6))};
     options_.degree = static_cast<int>(get_option(m, "degree", 2));

@@ -26,9 +26,7 @@ class SurfaceFirst final : public MuscleRepresentation {
  public:
   SurfaceFirst(const Model& model, MuscleIndex mi) {
     const Muscle& m = model.get_muscle(mi);
-    if (m.rest_mesh.V.rows() == 0)
-      throw_bad_input("representation 'surface_first' needs a muscle mesh",
-                      {.object = m.name, .suggestion = "give the muscle a mesh, or use 'action_line'"});
+    require_muscle_mesh(m, "surface_first");
     SurfaceFirstOptions options;
     options.line_weight = get_option(m, "line_weight", options.line_weight);
     options.contact_weight = get_option(m, "contact_weight", options.contact_weight);

@@ -5,6 +5,8 @@
 #include "fascicle/scene/model.hpp"
 #include "fascicle/scene/state.hpp"
 
+#include "muscle_setup.hpp"
+
 #include <algorithm>
 
 namespace fascicle {
@@ -88,9 +90,7 @@ class BlendedSurface final : public MuscleRepresentation {
  public:
   BlendedSurface(const Model& model, MuscleIndex mi) {
     const Muscle& m = model.get_muscle(mi);
-    if (m.rest_mesh.V.rows() == 0)
-      throw_bad_input("representation 'blended_surface' needs a muscle mesh",
-                      {.object = m.name, .suggestion = "give the muscle a mesh, or use 'action_line'"});
+    scene_detail::require_muscle_mesh(m, "blended_surface");
     const RestLine line = calc_rest_line(model, m);
     surface_ = bind_points(m.rest_mesh.V, model, m, line);
     for (const Points3& f : m.rest_fibres) fibres_.push_back(bind_points(f, model, m, line));
