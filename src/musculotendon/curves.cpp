@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <utility>
 
@@ -261,6 +262,26 @@ SmoothSegmentedCurve::SmoothSegmentedCurve(std::vector<Segment> segments, double
     f.ai0 = integral_form(f.y0, f.ax0, f.ay0);
     f.ai1 = integral_form(f.y5, f.ax1, f.ay1);  // ∫_0^w y dx/dw = −∫_{1−w}^1 y x' du
     f.total = poly10(f.ai0, 1.0);
+    const auto fill_jet = [](const std::array<double, 6>& ax, const std::array<double, 6>& ay,
+                             double odd, std::array<double, 34>& c) {
+      // (x, y) pair n of the block starting at pair b
+      const auto put = [&c](int b, int n, double x, double y) {
+        c[2 * (b + n)] = x;
+        c[2 * (b + n) + 1] = y;
+      };
+      for (int k = 1; k <= 5; ++k) put(0, k - 1, ax[k], ay[k]);
+      for (int k = 1; k <= 5; ++k) put(5, k - 1, odd * (k * ax[k]), odd * (k * ay[k]));
+      for (int k = 2; k <= 5; ++k) {
+        const double f2 = k * (k - 1);
+        put(10, k - 2, f2 * ax[k], f2 * ay[k]);
+      }
+      for (int k = 3; k <= 5; ++k) {
+        const double f3 = k * (k - 1) * (k - 2);
+        put(14, k - 3, odd * (f3 * ax[k]), odd * (f3 * ay[k]));
+      }
+    };
+    fill_jet(f.ax0, f.ay0, 1.0, f.jet0);
+    fill_jet(f.ax1, f.ay1, -1.0, f.jet1);
     f.dx = (f.x5 - f.x0) / N;
     f.inv_dx = (f.dx > 0.0) ? 1.0 / f.dx : 0.0;
     std::array<double, N + 1> dudx{};
@@ -318,7 +339,8 @@ double SmoothSegmentedCurve::calc_inverse_estimate(double y) const {
   return inverse_x_[j] + s * (inverse_x_[j + 1] - inverse_x_[j]);
 }
 
-double SmoothSegmentedCurve::guess_u(const Fast& f, double x, double& lo, double& hi) const {
+[[gnu::always_inline]] inline double SmoothSegmentedCurve::guess_u(const Fast& f, double x, double& lo,
+                                                                  double& hi) const {
   constexpr int N = kTableIntervals;
   const double t = std::clamp((x - f.x0) * f.inv_dx, 0.0, static_cast<double>(N));
   const int j = std::min(static_cast<int>(t), N - 1);
@@ -350,14 +372,14 @@ double SmoothSegmentedCurve::solve_u(const Fast& f, double x) const {
   return newton_u(f, x, u, lo, hi);
 }
 
-int SmoothSegmentedCurve::find_segment(double x) const {
+[[gnu::always_inline]] inline int SmoothSegmentedCurve::find_segment(double x) const {
   if (x < x_begin_) return -1;
+  // Branch-free: the number of segments ending before x (all of them for NaN).
   const int n = static_cast<int>(segment_ends_.size());
   const double* ends = segment_ends_.data();
-  for (int i = 0; i < n; ++i) {
-    if (x <= ends[i]) return i;
-  }
-  return n;
+  int i = 0;
+  for (int k = 0; k < n; ++k) i += !(x <= ends[k]);
+  return i;
 }
 
 CurvePoint SmoothSegmentedCurve::calc(double x) const {
@@ -373,6 +395,15 @@ CurvePoint SmoothSegmentedCurve::calc(double x) const {
   return {f.y5 + poly5(f.ay1, w), poly5_du(f.ay1, w) / poly5_du(f.ax1, w)};
 }
 
+namespace {
+typedef double V2 __attribute__((vector_size(16)));
+inline V2 load_pair(const double* p) {
+  V2 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+}  // namespace
+
 CurveJet SmoothSegmentedCurve::calc_jet(double x) const {
   const int i = find_segment(x);
   if (i < 0) return {fast_.front().y0 + dydx_left_ * (x - fast_.front().x0), dydx_left_, 0.0};
@@ -383,16 +414,34 @@ CurveJet SmoothSegmentedCurve::calc_jet(double x) const {
   double lo = 0.0, hi = 1.0;
   double u = guess_u(f, x, lo, hi);
   // x(u) − x, y(u) and their first three u-derivatives at u, in the power form about the
-  // nearer end (w = 1 − u flips the sign of odd derivatives); one code path for both ends.
+  // nearer end (w = 1 − u; end 1's odd coefficients are stored negated), x and y as one SIMD
+  // pair per Horner chain. The same operations as poly5, poly5_du, poly5_du2, poly5_du3.
   const auto at = [&f, x](double v, double* X, double* Y) __attribute__((always_inline)) {
     const bool near0 = v < 0.5;
-    const std::array<double, 6>& ax = near0 ? f.ax0 : f.ax1;
-    const std::array<double, 6>& ay = near0 ? f.ay0 : f.ay1;
-    const double w = near0 ? v : 1.0 - v, sign = near0 ? 1.0 : -1.0;
-    X[0] = poly5(ax, w) - (x - (near0 ? f.x0 : f.x5));
-    X[1] = sign * poly5_du(ax, w), X[2] = poly5_du2(ax, w), X[3] = sign * poly5_du3(ax, w);
-    Y[0] = (near0 ? f.y0 : f.y5) + poly5(ay, w);
-    Y[1] = sign * poly5_du(ay, w), Y[2] = poly5_du2(ay, w), Y[3] = sign * poly5_du3(ay, w);
+    const double* c = near0 ? f.jet0.data() : f.jet1.data();
+    const double w = near0 ? v : 1.0 - v;
+    const V2 W = {w, w};
+    V2 p0 = load_pair(c + 8);
+    p0 = p0 * W + load_pair(c + 6);
+    p0 = p0 * W + load_pair(c + 4);
+    p0 = p0 * W + load_pair(c + 2);
+    p0 = (p0 * W + load_pair(c + 0)) * W;
+    V2 p1 = load_pair(c + 18);
+    p1 = p1 * W + load_pair(c + 16);
+    p1 = p1 * W + load_pair(c + 14);
+    p1 = p1 * W + load_pair(c + 12);
+    p1 = p1 * W + load_pair(c + 10);
+    V2 p2 = load_pair(c + 26);
+    p2 = p2 * W + load_pair(c + 24);
+    p2 = p2 * W + load_pair(c + 22);
+    p2 = p2 * W + load_pair(c + 20);
+    V2 p3 = load_pair(c + 32);
+    p3 = p3 * W + load_pair(c + 30);
+    p3 = p3 * W + load_pair(c + 28);
+    X[0] = p0[0] - (x - (near0 ? f.x0 : f.x5));
+    Y[0] = (near0 ? f.y0 : f.y5) + p0[1];
+    X[1] = p1[0], X[2] = p2[0], X[3] = p3[0];
+    Y[1] = p1[1], Y[2] = p2[1], Y[3] = p3[1];
   };
   double X[4], Y[4];
   at(u, X, Y);

@@ -113,6 +113,11 @@ class SmoothSegmentedCurve {
     std::array<double, kTableIntervals + 1> table_u{};
     // Cubic Hermite guess on table interval j: u ≈ Σ guess[j][k] s^k, s ∈ [0, 1] across it.
     std::array<std::array<double, 4>, kTableIntervals> guess{};
+    // The jet's coefficients per end (0: in u, 1: in w = 1 − u), interleaved (x, y) pairs so
+    // both polynomials are evaluated in one SIMD Horner chain: d⁰ a_1..a_5, d¹ k a_k (k = 1..5),
+    // d² k(k−1) a_k (k = 2..5), d³ k(k−1)(k−2) a_k (k = 3..5); the odd derivatives of end 1
+    // negated (d/du = −d/dw). The products are the ones poly5_du* form, so results are the same.
+    alignas(16) std::array<double, 34> jet0{}, jet1{};
   };
   double solve_u(const Fast& f, double x) const;
   double guess_u(const Fast& f, double x, double& lo, double& hi) const;
