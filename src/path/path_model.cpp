@@ -107,6 +107,36 @@ void remove_wrap_vertices(std::vector<PathVertex>& v, int w) {
           v.end());
 }
 
+// Position of a vertex as the length sums see it. With `first_use` (PathOptions::
+// opensim_tangent_point_cache), a tangent point keeps the ground position it had when a length sum
+// first read it in this pose, as OpenSim 4's cached Point::getLocationInGround does.
+Vec3 reported_position(PathResult& out, const PathVertex& v, bool first_use) {
+  if (!first_use || v.wrap < 0) return v.p_ground;
+  PathWrapState& w = out.wraps[v.wrap];
+  const int k = v.tangent - 1;
+  if (!w.first_use_set[k]) {
+    w.first_use_ground[k] = v.p_ground;
+    w.first_use_set[k] = true;
+  }
+  return w.first_use_ground[k];
+}
+
+// Path length as calc_path_length, straight pieces between reported positions.
+double calc_reported_length(PathResult& out, bool first_use) {
+  if (!first_use) return calc_path_length(out);
+  double length = 0;
+  for (size_t i = 0; i + 1 < out.vertices.size(); ++i) {
+    const PathVertex& a = out.vertices[i];
+    const PathVertex& b = out.vertices[i + 1];
+    if (a.tangent == 1 && b.wrap == a.wrap) {
+      length += out.wraps[a.wrap].result.arc_length;
+    } else {
+      length += (reported_position(out, b, true) - reported_position(out, a, true)).norm();
+    }
+  }
+  return length;
+}
+
 // Applies one path wrap (OpenSim GeometryPath::applyWrapObjects, one object).
 void apply_wrap(const PathSetModel& model, const CompiledPath& path, int w,
                 const std::vector<Transform>& X_ground_body, PathResult& out) {
@@ -129,6 +159,7 @@ void apply_wrap(const PathSetModel& model, const CompiledPath& path, int w,
   if (jfwd < 0 || jfwd >= jrev) return;
   ws.X_ground_wrap = X_ground_body[obj.body] * obj.spec.X_body_wrap;
   const Transform X_wrap_ground = ws.X_ground_wrap.inverse();
+  const bool first_use = model.options.opensim_tangent_point_cache;
   int best_at = -1;
   double best_change = std::numeric_limits<double>::infinity();
   for (int j = jfwd; j < jrev; ++j) {
@@ -151,8 +182,14 @@ void apply_wrap(const PathSetModel& model, const CompiledPath& path, int w,
     // OpenSim (GeometryPath::calcPathLengthChange): of several wrapped segments, the one whose
     // length grows least by the wrap.
     if (r.status == WrapStatus::wrapped) {
-      const double change =
+      double change =
           (r.t1 - p1).norm() + r.arc_length + (p2 - r.t2).norm() - (p2 - p1).norm();
+      if (first_use) {  // OpenSim measures from the ends' reported positions, in ground
+        const Vec3 q1 = reported_position(out, out.vertices[j], true);
+        const Vec3 q2 = reported_position(out, out.vertices[j + 1], true);
+        change = (ws.X_ground_wrap * r.t1 - q1).norm() + r.arc_length +
+                 (q2 - ws.X_ground_wrap * r.t2).norm() - (q2 - q1).norm();
+      }
       if (change < best_change) {
         best_change = change;
         best_at = j;
@@ -259,7 +296,7 @@ void calc_path(const PathSetModel& model, int path, const std::vector<Transform>
   for (int k = 0; k < max_iter; ++k) {
     for (int i = 0; i < nw; ++i) apply_wrap(model, p, order[i], X_ground_body, out);
     out.iterations = k + 1;
-    out.length_m = calc_path_length(out);
+    out.length_m = calc_reported_length(out, model.options.opensim_tangent_point_cache);
     if (std::abs(out.length_m - last) < model.options.tolerance_m) break;
     last = out.length_m;
     // OpenSim: if the first object did not wrap and the second had a point inside it, swap them.

@@ -5,6 +5,7 @@
 // so it is testable with hand-made kinematics. See docs/paths.md.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -76,6 +77,10 @@ struct PathWrapState {
   WrapStatus status = WrapStatus::no_wrap;  // status of the last segment tried
   WrapResult result;                        // tangent points, arc: frame of the wrap object
   Transform X_ground_wrap = Transform::Identity();
+  // PathOptions::opensim_tangent_point_cache: ground positions of the tangent points (1, 2) when
+  // a length sum first read them in this pose.
+  std::array<Vec3, 2> first_use_ground{Vec3::Zero(), Vec3::Zero()};
+  std::array<bool, 2> first_use_set{false, false};
 };
 
 // Position-level result of one path (every number NaN until computed).

@@ -144,6 +144,12 @@ struct PathOptions {
   // `tolerance_m`, at most `max_iterations` times (OpenSim: 8 and 0.0005 m).
   int max_iterations = 8;
   double tolerance_m = 5e-4;
+  // Reproduce OpenSim 4's reported length on paths with two or more wraps (parity only; off by
+  // default). OpenSim caches a tangent point's ground position the first time a length sum reads
+  // it in a pose (Point::getLocationInGround is a Stage::Position cache) and re-wrapping does not
+  // invalidate it, so its straight pieces end at tangent points of an earlier pass while the arcs
+  // come from the last one. The reported length is then not the length of one path.
+  bool opensim_tangent_point_cache = false;
 };
 
 // All paths of a model and the wrap objects they share.
