@@ -174,99 +174,115 @@ namespace {
 // with the field (0, 0, z) (∇· = 1): V = Σ_faces ± ∫∫ z (x_a × x_b)_z da db, which needs z, x_a
 // and x_b but not x, y. With kGradient, dV/dQ = ± ∫∫ N n da db needs the whole normal
 // n = x_a × x_b. Returns the face integral; adds the gradient rows (times sign) into grad.
+//
+// Layout (a points in SIMD pairs, p = pair): L[b control][p][k][lane], k = 0..2 the a-derivative
+// of the coordinates, k = 3..5 their values; T[b control][p][q][lane]. One b control's data for a
+// pair is contiguous, so the sweep addresses each of the WB rows with one pointer.
 template <bool kGradient, int WA, int WB, class Dir, class FaceIndex>
 double integrate_face(const Dir& A, const Dir& B, double* G, double* scratch, double sign,
                       const FaceIndex& face_index, Points3* grad) {
   using A2 = Eigen::Array2d;
   const auto load = [](const double* p) { return A2(Eigen::Map<const A2>(p)); };
-  const int na = A.num_control, nb = B.num_control, Qa = A.num_points, Qb = B.num_points;
+  const auto add_to = [](double* p, const A2& v) { Eigen::Map<A2>(p) += v; };
+  const int na = A.num_control, nb = B.num_control, Qb = B.num_points;
   const int Qp = A.padded_points;  // a points padded to whole SIMD pairs (padding: zero weight)
-  // L0/L1[coordinate][b control][a point]: G contracted with the a values / a derivatives.
-  double* L0 = scratch;
-  double* L1 = L0 + 3 * nb * Qp;
-  double* T = L1 + 3 * nb * Qp;  // [coordinate][b control][a point] (gradient)
-  double* acc = T + 3 * nb * Qp;  // [a point]
-  double* wa = acc + Qp;          // [a point]
-  for (int qa = 0; qa < Qp; ++qa) wa[qa] = qa < Qa ? A.weight[qa] : 0.0;
-  // dense, band-limited: l[qa] = Σ_ia g[ia] N_ia(qa), in SIMD pairs of a points
-  std::fill(L0, L0 + 6 * nb * Qp, 0.0);
-  for (int q = 0; q < 3; ++q)
-    for (int jb = 0; jb < nb; ++jb) {
-      const double* g = G + (q * nb + jb) * na;
-      double* l0 = L0 + (q * nb + jb) * Qp;
-      double* l1 = L1 + (q * nb + jb) * Qp;
-      for (int ia = 0; ia < na; ++ia) {
-        const A2 v = A2::Constant(g[ia]);
-        const double* d0 = &A.dense0[ia * Qp];
-        const double* d1 = &A.dense1[ia * Qp];
-        for (int qa = A.band_lo[ia]; qa < A.band_hi[ia]; qa += 2) {
-          Eigen::Map<A2>(l0 + qa) += v * load(d0 + qa);
-          Eigen::Map<A2>(l1 + qa) += v * load(d1 + qa);
-        }
+  const int np = Qp / 2;
+  double* L = scratch;                                   // nb * np * 12
+  double* T = L + static_cast<std::size_t>(nb) * np * 12;  // nb * np * 6 (gradient)
+  double* wa = T + static_cast<std::size_t>(nb) * np * 6;  // Qp
+  for (int qa = 0; qa < Qp; ++qa) wa[qa] = qa < A.num_points ? A.weight[qa] : 0.0;
+  // dense, band-limited contraction along a: L[jb][p] = Σ_ia G[.][jb][ia] (N'_ia, N_ia)(p)
+  std::fill(L, L + static_cast<std::size_t>(nb) * np * 12, 0.0);
+  for (int jb = 0; jb < nb; ++jb) {
+    double* l = L + static_cast<std::size_t>(jb) * np * 12;
+    for (int ia = 0; ia < na; ++ia) {
+      const A2 gx = A2::Constant(G[(0 * nb + jb) * na + ia]);
+      const A2 gy = A2::Constant(G[(1 * nb + jb) * na + ia]);
+      const A2 gz = A2::Constant(G[(2 * nb + jb) * na + ia]);
+      const double* d0 = &A.dense0[ia * Qp];
+      const double* d1 = &A.dense1[ia * Qp];
+      for (int qa = A.band_lo[ia]; qa < A.band_hi[ia]; qa += 2) {
+        double* c = l + qa * 6;  // pair qa / 2
+        const A2 v1 = load(d1 + qa), v0 = load(d0 + qa);
+        add_to(c + 0, gx * v1);
+        add_to(c + 2, gy * v1);
+        add_to(c + 4, gz * v1);
+        add_to(c + 6, gx * v0);
+        add_to(c + 8, gy * v0);
+        add_to(c + 10, gz * v0);
       }
     }
-  for (int qa = 0; qa < Qp; ++qa) acc[qa] = 0.0;
-  if constexpr (kGradient) std::fill(T, T + 3 * nb * Qp, 0.0);
-  const int stride_q = nb * Qp;  // between coordinates in L0/L1/T
+  }
+  if constexpr (kGradient) std::fill(T, T + static_cast<std::size_t>(nb) * np * 6, 0.0);
   // Sweep the b points; at each (a pair, b point): x_a, x_b, z, n = x_a × x_b, the volume term,
-  // and (gradient) T[q][jb][qa] += w_b N_b(jb) n_q: the b half of ∫∫ N_I n.
+  // and (gradient) T[jb][p][q] += w_b N_b(jb) n_q: the b half of ∫∫ N_I n.
+  A2 face = A2::Zero();
   for (int qb = 0; qb < Qb; ++qb) {
     const double w = B.weight[qb];
     A2 n0[WB], n1[WB], wn0[WB];
-    const double* row0[WB];
-    const double* row1[WB];
+    const double* rowL[WB];
     double* rowT[WB];
     for (int r = 0; r < WB; ++r) {
+      const int jb = B.index[qb * WB + r];
       n0[r] = A2::Constant(B.N0[qb * WB + r]);
       n1[r] = A2::Constant(B.N1[qb * WB + r]);
       wn0[r] = A2::Constant(w * B.N0[qb * WB + r]);
-      row0[r] = L0 + B.index[qb * WB + r] * Qp;
-      row1[r] = L1 + B.index[qb * WB + r] * Qp;
-      rowT[r] = T + B.index[qb * WB + r] * Qp;
+      rowL[r] = L + static_cast<std::size_t>(jb) * np * 12;
+      rowT[r] = T + static_cast<std::size_t>(jb) * np * 6;
     }
-    for (int qa = 0; qa < Qp; qa += 2) {
-      A2 xa[3] = {A2::Zero(), A2::Zero(), A2::Zero()};
-      A2 xb[3] = {A2::Zero(), A2::Zero(), A2::Zero()};
-      A2 z = A2::Zero();
-      for (int r = 0; r < WB; ++r) {
-        for (int q = 0; q < 3; ++q) {
-          xa[q] += n0[r] * load(row1[r] + q * stride_q + qa);
-          xb[q] += n1[r] * load(row0[r] + q * stride_q + qa);
-        }
-        z += n0[r] * load(row0[r] + 2 * stride_q + qa);
+    A2 row = A2::Zero();
+    for (int p = 0; p < np; ++p) {
+      const double* l = rowL[0] + p * 12;
+      A2 xa0 = n0[0] * load(l + 0), xa1 = n0[0] * load(l + 2), xa2 = n0[0] * load(l + 4);
+      A2 xb0 = n1[0] * load(l + 6), xb1 = n1[0] * load(l + 8), xb2 = n1[0] * load(l + 10);
+      A2 z = n0[0] * load(l + 10);
+      for (int r = 1; r < WB; ++r) {
+        l = rowL[r] + p * 12;
+        xa0 += n0[r] * load(l + 0);
+        xa1 += n0[r] * load(l + 2);
+        xa2 += n0[r] * load(l + 4);
+        xb0 += n1[r] * load(l + 6);
+        xb1 += n1[r] * load(l + 8);
+        const A2 lz = load(l + 10);
+        xb2 += n1[r] * lz;
+        z += n0[r] * lz;
       }
-      const A2 cz = xa[0] * xb[1] - xa[1] * xb[0];
-      Eigen::Map<A2>(acc + qa) += (w * load(wa + qa)) * (z * cz);
+      const A2 cz = xa0 * xb1 - xa1 * xb0;
+      row += load(wa + 2 * p) * (z * cz);
       if constexpr (kGradient) {
-        const A2 nrm[3] = {xa[1] * xb[2] - xa[2] * xb[1], xa[2] * xb[0] - xa[0] * xb[2], cz};
-        for (int r = 0; r < WB; ++r)
-          for (int q = 0; q < 3; ++q) Eigen::Map<A2>(rowT[r] + q * stride_q + qa) += wn0[r] * nrm[q];
+        const A2 cx = xa1 * xb2 - xa2 * xb1, cy = xa2 * xb0 - xa0 * xb2;
+        for (int r = 0; r < WB; ++r) {
+          double* t = rowT[r] + p * 6;
+          add_to(t + 0, wn0[r] * cx);
+          add_to(t + 2, wn0[r] * cy);
+          add_to(t + 4, wn0[r] * cz);
+        }
+      }
+    }
+    face += w * row;
+  }
+  if constexpr (kGradient) {
+    // dV/dQ(ia, jb) = sign Σ_qa w_a N_a(ia) T[jb][qa], added to the solid's rows.
+    for (int jb = 0; jb < nb; ++jb) {
+      const double* t = T + static_cast<std::size_t>(jb) * np * 6;
+      for (int ia = 0; ia < na; ++ia) {
+        const double* dw = &A.dense_w[ia * Qp];
+        A2 sx = A2::Zero(), sy = A2::Zero(), sz = A2::Zero();
+        for (int qa = A.band_lo[ia]; qa < A.band_hi[ia]; qa += 2) {
+          const A2 d = load(dw + qa);
+          const double* c = t + qa * 3;  // pair qa / 2
+          sx += d * load(c + 0);
+          sy += d * load(c + 2);
+          sz += d * load(c + 4);
+        }
+        const int row = face_index(ia, jb);
+        (*grad)(row, 0) += sign * sx.sum();
+        (*grad)(row, 1) += sign * sy.sum();
+        (*grad)(row, 2) += sign * sz.sum();
       }
     }
   }
-  double face = 0.0;
-  for (int qa = 0; qa < Qa; ++qa) face += acc[qa];
-  if constexpr (kGradient) {
-    // dV/dQ(ia, jb) = sign Σ_qa w_a N_a(ia) T[jb][qa], gathered on the face grid (G's storage),
-    // then added to the solid's rows.
-    for (int q = 0; q < 3; ++q)
-      for (int jb = 0; jb < nb; ++jb) {
-        const double* t = T + (q * nb + jb) * Qp;
-        double* gg = G + (q * nb + jb) * na;
-        for (int ia = 0; ia < na; ++ia) {
-          const double* dw = &A.dense_w[ia * Qp];
-          A2 sum = A2::Zero();
-          for (int qa = A.band_lo[ia]; qa < A.band_hi[ia]; qa += 2) sum += load(dw + qa) * load(t + qa);
-          gg[ia] = sum.sum();
-        }
-      }
-    for (int jb = 0; jb < nb; ++jb)
-      for (int ia = 0; ia < na; ++ia) {
-        const int row = face_index(ia, jb);
-        for (int q = 0; q < 3; ++q) (*grad)(row, q) += sign * G[(q * nb + jb) * na + ia];
-      }
-  }
-  return face;
+  return face.sum();
 }
 
 // Widths 2..4 (degrees 1..3) get compiled kernels; the rest the generic ones up to
@@ -314,7 +330,7 @@ double BoundaryVolumeIntegrator::integrate(const Points3& P, Points3* gradient) 
   // control points even in rounding.
   const double c0[3] = {P(0, 0), P(0, 1), P(0, 2)};
   const auto index = [&](int i, int j, int k) { return i + n[0] * (j + n[1] * k); };
-  // scratch, sized for the largest face: G, L0, L1, acc, normals
+  // scratch, sized for the largest face: G, L (values and derivatives), T (gradient), a weights
   std::size_t need = 0;
   for (int c = 0; c < 3; ++c) {
     const Direction& A = dir_[(c + 1) % 3];
