@@ -101,4 +101,78 @@ StressAndEnergy calc_tendon_fibre(double modulus_Pa, const Mat3& F, const Vec3& 
   return out;
 }
 
+// Directional derivative of the stress of calc_mooney_rivlin along dF = e_k e_lᵀ, per column:
+//   d(J^{-2/3}) = −2/3 J^{-2/3} F^{-T}:dF,  dI1 = 2 F:dF,  dI2 = 2 (I1 F − F C):dF,
+//   d(F^{-T}) = −F^{-T} dFᵀ F^{-T},  d(F C) = dF C + F dFᵀ F + F Fᵀ dF.
+Mat9 calc_mooney_rivlin_tangent(const MooneyRivlinParameters& p, const Mat3& F) {
+  const double J = F.determinant();
+  const Mat3 FinvT = F.inverse().transpose();
+  const Mat3 C = F.transpose() * F;
+  const Mat3 FC = F * C;
+  const Mat3 FFt = F * F.transpose();
+  const double I1 = C.trace();
+  const double I2 = 0.5 * (I1 * I1 - (C * C).trace());
+  const double J23 = std::pow(J, -2.0 / 3.0);
+  const double J43 = J23 * J23;
+  const double lnJ = std::log(J);
+  const Mat3 P1 = 2.0 * F - (2.0 / 3.0) * I1 * FinvT;
+  const Mat3 P2 = 2.0 * (I1 * F - FC) - (4.0 / 3.0) * I2 * FinvT;
+  const double c1 = p.c1_Pa, c2 = p.c2_Pa, kappa = p.bulk_modulus_Pa;
+  Mat9 D;
+  for (int l = 0; l < 3; ++l)
+    for (int k = 0; k < 3; ++k) {
+      const double tr = FinvT(k, l);  // F^{-T} : dF
+      const double dI1 = 2.0 * F(k, l);
+      const double dI2 = 2.0 * (I1 * F(k, l) - FC(k, l));
+      const Mat3 dFinvT = -FinvT.col(l) * FinvT.row(k);
+      Mat3 dF = Mat3::Zero();
+      dF(k, l) = 1.0;
+      Mat3 dFC = F.col(l) * F.row(k) + FFt.col(k) * Mat3::Identity().row(l);
+      dFC.row(k) += C.row(l);
+      const Mat3 dP1 = 2.0 * dF - (2.0 / 3.0) * (dI1 * FinvT + I1 * dFinvT);
+      const Mat3 dP2 = 2.0 * (dI1 * F + I1 * dF - dFC) - (4.0 / 3.0) * (dI2 * FinvT + I2 * dFinvT);
+      Mat3 dP = c1 * J23 * (dP1 - (2.0 / 3.0) * tr * P1) + c2 * J43 * (dP2 - (4.0 / 3.0) * tr * P2);
+      if (kappa != 0.0) dP += kappa * (tr * FinvT + lnJ * dFinvT);
+      D.col(k + 3 * l) = Eigen::Map<const Eigen::Matrix<double, 9, 1>>(dP.data());
+    }
+  return D;
+}
+
+double calc_blemker_passive_slope(const BlemkerFibreParameters& p, double lambda) {
+  const double l = lambda / p.lambda_opt;
+  const double s = p.lambda_star / p.lambda_opt;
+  if (l <= 1.0) return 0.0;
+  if (l < s) return p.p1 * p.p2 * std::exp(p.p2 * (l - 1.0)) / p.lambda_opt;
+  double p3, p4;
+  passive_linear_branch(p, p3, p4);
+  return p3 / p.lambda_opt;
+}
+
+double calc_blemker_active_slope(const BlemkerFibreParameters& p, double lambda) {
+  const double l = lambda / p.lambda_opt;
+  double d = 0.0;
+  if (l <= 0.4 || l >= 1.6) d = 0.0;
+  else if (l < 0.6) d = 18.0 * (l - 0.4);
+  else if (l <= 1.4) d = 8.0 * (1.0 - l);
+  else d = 18.0 * (l - 1.6);
+  return d / p.lambda_opt;
+}
+
+void add_fibre_tangent(const Mat3& F, const Vec3& a0, double phi, double dphi, Mat9& D) {
+  const Vec3 Fa = F * a0;
+  const double lambda = Fa.norm();
+  if (!(lambda > 0.0)) return;
+  const double psi = phi / lambda;
+  const double c = (dphi / lambda - phi / (lambda * lambda)) / lambda;
+  Mat3 B = Fa * a0.transpose();
+  const Eigen::Map<const Eigen::Matrix<double, 9, 1>> b(B.data());
+  D.noalias() += c * b * b.transpose();
+  // ψ δ_ik a0_j a0_l: rows i + 3 j, columns k + 3 l.
+  for (int l = 0; l < 3; ++l)
+    for (int j = 0; j < 3; ++j) {
+      const double v = psi * a0[j] * a0[l];
+      for (int i = 0; i < 3; ++i) D(i + 3 * j, i + 3 * l) += v;
+    }
+}
+
 }  // namespace fascicle

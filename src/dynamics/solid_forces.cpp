@@ -78,6 +78,14 @@ struct ForceVelocity {
     const double v = ((F * a0).norm() - lambda_n) * inv_h_vmax;
     return std::clamp(degroote_force_velocity(v).value, 0.0, 1.8);
   }
+  // f_v and ∂f_v/∂λ at fibre stretch λ (0 when fixed or clamped).
+  CurvePoint calc_with_slope(double lambda) const {
+    if (!implicit) return {fixed, 0.0};
+    const CurvePoint c = degroote_force_velocity((lambda - lambda_n) * inv_h_vmax);
+    if (c.value < 0.0) return {0.0, 0.0};
+    if (c.value > 1.8) return {1.8, 0.0};
+    return {c.value, c.derivative * inv_h_vmax};
+  }
 };
 
 StressAndEnergy calc_material(const SolidDynamicsSpec& s, const QuadraturePoint& q, const Mat3& F,
@@ -107,6 +115,46 @@ StressAndEnergy calc_material(const SolidDynamicsSpec& s, const QuadraturePoint&
     out.active_density_Pa = f.sigma_max_Pa * activation * fv * calc_blemker_active_integral(f, l);
   }
   return out;
+}
+
+// Analytic ∂P/∂F of calc_material (same branches): Mooney–Rivlin in closed form, the fibre laws
+// through φ = ∂W/∂λ and φ' (with the implicit force–velocity factor's slope).
+Mat9 calc_material_tangent(const SolidDynamicsSpec& s, const QuadraturePoint& q, const Mat3& F,
+                           double activation, const ForceVelocity& fvm) {
+  Mat9 D = Mat9::Zero();
+  const double lambda = (F * q.fibre_rest).norm();
+  const BlemkerFibreParameters& f = s.fibre;
+  const double scale = f.sigma_max_Pa / f.lambda_opt;
+  auto add_active = [&](double& phi, double& dphi) {
+    if (q.tendon || !(activation > 0.0)) return;
+    const CurvePoint fv = fvm.calc_with_slope(lambda);
+    const double fa = calc_blemker_active(f, lambda);
+    phi += scale * activation * fa * fv.value;
+    dphi += scale * activation * (calc_blemker_active_slope(f, lambda) * fv.value + fa * fv.derivative);
+  };
+  double phi = 0.0, dphi = 0.0;
+  if (s.hyperelastic) {
+    MooneyRivlinParameters g = s.ground;
+    if (q.tendon) {
+      g.c1_Pa *= s.tendon_stiffness_factor;
+      g.c2_Pa *= s.tendon_stiffness_factor;
+    }
+    D = calc_mooney_rivlin_tangent(g, F);
+    if (q.tendon) {
+      if (lambda > 1.0) {
+        phi = s.tendon_modulus_Pa * (lambda - 1.0);
+        dphi = s.tendon_modulus_Pa;
+      }
+    } else {
+      phi = scale * calc_blemker_passive(f, lambda);
+      dphi = scale * calc_blemker_passive_slope(f, lambda);
+      add_active(phi, dphi);
+    }
+  } else {
+    add_active(phi, dphi);
+  }
+  if (phi != 0.0 || dphi != 0.0) add_fibre_tangent(F, q.fibre_rest, phi, dphi, D);
+  return D;
 }
 
 [[noreturn]] void throw_inverted(const SolidDynamicsModel& m, const QuadraturePoint& q, double J) {
@@ -147,8 +195,7 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
   const bool any_material = s.hyperelastic || activation > 0.0 ||
                             (with_stiffness && volume_hessian_scale != 0.0);
   const double vmax = s.max_fibre_strain_rate_1_s * s.fibre.lambda_opt;
-  std::array<Mat3, 9> dP;  // dP/dF_{kl}, k + 3 l
-  std::vector<Mat3> T;     // per support point and k: Σ_l dP/dF_kl g_b[l]
+  std::vector<Eigen::Matrix<double, 9, 3>> T;  // per support point: Σ_l ∂P/∂F_kl w g_b[l]
   for (std::size_t qi = 0; any_material && qi < m.quadrature.size(); ++qi) {
     const QuadraturePoint& q = m.quadrature[qi];
     const int* idx = &m.support_index[q.first];
@@ -177,17 +224,8 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
     for (int a = 0; a < q.count; ++a)
       out.force.segment<3>(3 * idx[a]) -= q.weight_m3 * (se.P * g[a]);
     if (!K) continue;
-    // Tangent dP/dF by central differences of the analytic stress (with the implicit fv: its
-    // viscous part too).
-    const double h = 1e-6 * std::max(1.0, F.norm());
-    for (int l = 0; l < 3; ++l)
-      for (int k = 0; k < 3; ++k) {
-        Mat3 Fp = F, Fm = F;
-        Fp(k, l) += h;
-        Fm(k, l) -= h;
-        dP[k + 3 * l] = (calc_material(s, q, Fp, activation, fv).P -
-                         calc_material(s, q, Fm, activation, fv).P) / (2.0 * h);
-      }
+    // Tangent ∂P/∂F, analytic (with the implicit fv: its viscous part too).
+    Mat9 D = calc_material_tangent(s, q, F, activation, fv);
     // Volume curvature: ∂cof(F)_ai/∂F_kl = ε_akc ε_ilm F_cm (det F = the volume density).
     if (volume_hessian_scale != 0.0) {
       auto eps = [](int a, int b, int c) { return static_cast<double>((a - b) * (b - c) * (c - a)) / 2.0; };
@@ -198,24 +236,31 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
               double v = 0.0;
               for (int c = 0; c < 3; ++c)
                 for (int mm = 0; mm < 3; ++mm) v += eps(a2, k, c) * eps(i, l, mm) * F(c, mm);
-              dP[k + 3 * l](a2, i) += volume_hessian_scale * v;
+              D(a2 + 3 * i, k + 3 * l) += volume_hessian_scale * v;
             }
     }
-    // K_ab(i,k) = w Σ_jl g_a[j] dP_ij/dF_kl g_b[l]: T_bk = w Σ_l dP/dF_kl g_b[l] (3x3 in i,j),
-    // then column k of block (a,b) is T_bk g_a.
-    T.resize(static_cast<std::size_t>(3 * q.count));
-    for (int b = 0; b < q.count; ++b)
-      for (int k = 0; k < 3; ++k)
-        T[3 * b + k] = q.weight_m3 * (dP[k] * g[b][0] + dP[k + 3] * g[b][1] + dP[k + 6] * g[b][2]);
+    // K_ab(i,k) = w Σ_jl g_a[j] ∂P_ij/∂F_kl g_b[l]. T_b (rows i + 3 j, column k) = w Σ_l
+    // ∂P/∂F_kl g_b[l]; then block (a, b) = Σ_j g_a[j] T_b(rows 3 j .. 3 j + 2).
+    T.resize(static_cast<std::size_t>(q.count));
+    for (int b = 0; b < q.count; ++b) {
+      const Vec3 wg = q.weight_m3 * g[b];
+      T[b].noalias() = D.middleCols<3>(0) * wg[0];
+      T[b].noalias() += D.middleCols<3>(3) * wg[1];
+      T[b].noalias() += D.middleCols<3>(6) * wg[2];
+    }
+    // Column k of D.middleCols<3>(3 l) is ∂P/∂F_kl: T_b column k = Σ_l D(:, k + 3 l) w g_b[l].
     for (int p = m.pair_first[qi]; p < m.pair_first[qi + 1]; ++p) {
       const auto& pr = m.pairs[p];
       const int Jn = idx[pr.b];
-      for (int k = 0; k < 3; ++k) {
-        const Vec3 col = T[3 * pr.b + k] * g[pr.a];
-        const int pos = find_value_position(m, Jn, pr.block, 0, k);
-        K[pos] += col[0];
-        K[pos + 1] += col[1];
-        K[pos + 2] += col[2];
+      const Vec3& ga = g[pr.a];
+      const Eigen::Matrix<double, 9, 3>& Tb = T[pr.b];
+      const Mat3 blk = Tb.topRows<3>() * ga[0] + Tb.middleRows<3>(3) * ga[1] + Tb.bottomRows<3>() * ga[2];
+      const int deg = m.block_ptr[Jn + 1] - m.block_ptr[Jn];
+      double* dst = K + find_value_position(m, Jn, pr.block, 0, 0);
+      for (int k = 0; k < 3; ++k, dst += 3 * deg) {
+        dst[0] += blk(0, k);
+        dst[1] += blk(1, k);
+        dst[2] += blk(2, k);
       }
     }
   }

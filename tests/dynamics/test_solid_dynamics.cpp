@@ -90,6 +90,89 @@ TEST(SolidModel, ForcesAreMinusEnergyGradient) {
   }
 }
 
+// The closed-form tangents against central differences of the analytic stresses, at a general
+// (non-symmetric, J ≠ 1) F: Mooney–Rivlin with a bulk term, Blemker in each passive branch with
+// activation, the tendon law.
+TEST(SolidMaterials, AnalyticTangentsMatchFiniteDifferences) {
+  Mat3 F;
+  F << 1.12, 0.07, -0.05, 0.03, 0.93, 0.11, -0.08, 0.04, 1.21;
+  const double h = 1e-6;
+  auto fd = [&](auto&& stress, const Mat3& F0) {
+    Mat9 D;
+    for (int l = 0; l < 3; ++l)
+      for (int k = 0; k < 3; ++k) {
+        Mat3 Fp = F0, Fm = F0;
+        Fp(k, l) += h;
+        Fm(k, l) -= h;
+        const Mat3 d = (stress(Fp) - stress(Fm)) / (2.0 * h);
+        D.col(k + 3 * l) = Eigen::Map<const Eigen::Matrix<double, 9, 1>>(d.data());
+      }
+    return D;
+  };
+  MooneyRivlinParameters mr{.c1_Pa = 2e3, .c2_Pa = 1e3, .bulk_modulus_Pa = 5e4};
+  const Mat9 Dmr = calc_mooney_rivlin_tangent(mr, F);
+  const Mat9 Dmr_fd = fd([&](const Mat3& G) { return calc_mooney_rivlin(mr, G).P; }, F);
+  EXPECT_LT((Dmr - Dmr_fd).cwiseAbs().maxCoeff(), 1e-6 * Dmr.cwiseAbs().maxCoeff());
+  EXPECT_LT((Dmr - Dmr.transpose()).cwiseAbs().maxCoeff(), 1e-9 * Dmr.cwiseAbs().maxCoeff());
+
+  const BlemkerFibreParameters bf;
+  const Vec3 a0 = Vec3(0.2, -0.1, 1.0).normalized();
+  // Stretches below λopt (active only), in the exponential branch and in the linear branch.
+  for (double s : {0.8, 1.2, 1.5}) {
+    const Mat3 Fs = F * (s / (F * a0).norm());
+    const double lambda = (Fs * a0).norm();
+    ASSERT_NEAR(lambda, s, 1e-12);
+    const double a = 0.7;
+    const double scale = bf.sigma_max_Pa / bf.lambda_opt;
+    const double phi = scale * (calc_blemker_passive(bf, lambda) + a * calc_blemker_active(bf, lambda));
+    const double dphi = scale * (calc_blemker_passive_slope(bf, lambda) +
+                                 a * calc_blemker_active_slope(bf, lambda));
+    Mat9 D = Mat9::Zero();
+    add_fibre_tangent(Fs, a0, phi, dphi, D);
+    const Mat9 D_fd = fd([&](const Mat3& G) { return calc_blemker_fibre(bf, G, a0, a, 1.0).P; }, Fs);
+    EXPECT_LT((D - D_fd).cwiseAbs().maxCoeff(), 1e-6 * D.cwiseAbs().maxCoeff()) << "stretch " << s;
+  }
+  const Mat3 Ft = F * (1.05 / (F * a0).norm());
+  Mat9 Dt = Mat9::Zero();
+  add_fibre_tangent(Ft, a0, 2e6 * 0.05, 2e6, Dt);
+  const Mat9 Dt_fd = fd([&](const Mat3& G) { return calc_tendon_fibre(2e6, G, a0).P; }, Ft);
+  EXPECT_LT((Dt - Dt_fd).cwiseAbs().maxCoeff(), 1e-6 * Dt.cwiseAbs().maxCoeff());
+}
+
+// The assembled stiffness with activation, tendon ends and a bulk term (all analytic tangents)
+// against central differences of the forces.
+TEST(SolidModel, ActiveStiffnessMatchesForceDifferences) {
+  const BSplineSolid box = make_box({3, 3, 5});
+  SolidDynamicsSpec spec = make_free_spec();
+  spec.ground.c2_Pa = 1e3;
+  spec.ground.bulk_modulus_Pa = 2e4;
+  spec.pennation_rad = 0.25;
+  spec.tendon_fraction_start = 0.2;
+  spec.tendon_fraction_end = 0.2;
+  const SolidDynamicsModel m = compile_solid_dynamics(box, spec);
+  Points3 P = box.P;
+  for (Eigen::Index i = 0; i < P.rows(); ++i) {
+    const double z = P(i, 2);
+    P(i, 0) += 0.08 * P(i, 0) + 0.03 * z * z / 0.04;
+    P(i, 2) *= 0.9 + 3.0 * z;  // belly shortened, ends stretched (tendon in tension)
+  }
+  const double a = 0.8;
+  const ForceEvaluation fe = calc_forces(m, P, {}, a, true);
+  Eigen::SparseMatrix<double> Ks;
+  Ks = fe.stiffness.selfadjointView<Eigen::Lower>();
+  const Eigen::MatrixXd K = Eigen::MatrixXd(Ks);
+  const VecX x = flatten_points(P);
+  for (int k : {1, 9, 26, 40, 70}) {
+    VecX xp = x, xm = x;
+    xp[k] += 1e-7;
+    xm[k] -= 1e-7;
+    const VecX col = -(calc_forces(m, unflatten_points(xp), {}, a, false).force -
+                       calc_forces(m, unflatten_points(xm), {}, a, false).force) / 2e-7;
+    EXPECT_LT((col - K.col(k)).lpNorm<Eigen::Infinity>(), 1e-5 * K.col(k).lpNorm<Eigen::Infinity>())
+        << "column " << k;
+  }
+}
+
 TEST(SolidModel, InternalForcesSumToZero) {
   const BSplineSolid box = make_box();
   SolidDynamicsSpec spec = make_free_spec();

@@ -60,4 +60,20 @@ StressAndEnergy calc_blemker_fibre(const BlemkerFibreParameters& p, const Mat3& 
 // Tension-only linear fibre (tendon, aponeurosis): W = E/2 (λ − 1)^2 for λ > 1, else 0.
 StressAndEnergy calc_tendon_fibre(double modulus_Pa, const Mat3& F, const Vec3& a0);
 
+// ---- Analytic tangents (Newton's stiffness). Mat9 column k + 3 l holds vec(∂P/∂F_kl), with vec
+// column-major (row i + 3 j = P_ij), the layout of Eigen's Mat3 storage.
+using Mat9 = Eigen::Matrix<double, 9, 9>;
+
+// ∂P/∂F of calc_mooney_rivlin, closed form (directional derivatives of the stress above).
+Mat9 calc_mooney_rivlin_tangent(const MooneyRivlinParameters& p, const Mat3& F);
+
+// ∂/∂λ of the normalised Blemker curves (per unit of λ, not λ̂; one-sided at the kinks).
+double calc_blemker_passive_slope(const BlemkerFibreParameters& p, double lambda);
+double calc_blemker_active_slope(const BlemkerFibreParameters& p, double lambda);
+
+// Adds ∂P/∂F of any fibre stress P = φ(λ)/λ (F a0 ⊗ a0), λ = |F a0|, to D:
+//   ∂P_ij/∂F_kl = (φ'/λ − φ/λ²)/λ (F a0)_i a0_j (F a0)_k a0_l + φ/λ δ_ik a0_j a0_l.
+// phi = ∂W/∂λ (Pa), dphi = its derivative in λ (Pa).
+void add_fibre_tangent(const Mat3& F, const Vec3& a0, double phi, double dphi, Mat9& D);
+
 }  // namespace fascicle
