@@ -252,8 +252,13 @@ SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_act
 // parallelism is over muscles (TBB); nested OpenMP teams on top of it only wake sleeping threads
 // (measured: 25 % of a frame in futex wake-ups on two cores). Limit the calling thread's OpenMP
 // team to itself before each CHOLMOD call (the ICV is per thread, so this is cheap and local).
+// CHOLMOD 3's supernodal numeric factorisation also asks for a fixed team (num_threads(4) on its
+// copy loops), which overrides that ICV: those teams spun on the two cores for ≈ 8 % of the VH
+// shank run's CPU. With no active parallel level allowed, every OpenMP region runs on the thread
+// that meets it (same arithmetic, so the same results).
 void use_single_threaded_cholmod() {
   omp_set_num_threads(1);
+  if (omp_get_max_active_levels() != 0) omp_set_max_active_levels(0);
   use_single_threaded_blas();
 }
 
