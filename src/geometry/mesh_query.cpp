@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <string>
@@ -139,12 +140,14 @@ std::optional<RayHit> intersect_ray_triangle(const Vec3& origin, const Vec3& dir
 // radius handed to Embree is padded by the float rounding of the query point (closest_with_hint).
 // All distances, hits and barycentrics are computed in double by the kernels above.
 namespace {
-// Every kSeedStride-th used vertex seeds closest-point queries (measured: 8 and 32 cost the same,
+// Every kSeedStride-th welded vertex is in the seed k-d tree (measured: 8 and 32 cost the same,
 // 1 is slower because the full tree is expensive to search from far away).
 constexpr std::size_t kSeedStride = 8;
-// The mesh vertices that belong to at least one triangle, as nanoflann reads them.
+// Upper limit on the steps of the greedy vertex descent (it stops much earlier in practice).
+constexpr int kMaxDescentSteps = 256;
+// Points of the seed k-d tree, as nanoflann reads them.
 struct VertexCloud {
-  std::vector<double> xyz;  // 3 per vertex
+  std::vector<double> xyz;  // 3 per point
   std::size_t kdtree_get_point_count() const { return xyz.size() / 3; }
   double kdtree_get_pt(unsigned i, std::size_t d) const { return xyz[3 * std::size_t{i} + d]; }
   template <class Box>
@@ -159,26 +162,33 @@ struct MeshQuery::Bvh {
   RTCDevice device = nullptr;
   RTCScene scene = nullptr;
   // Triangles are stored in Morton order of their centroids ("slots"), so that triangles near in
-  // space are near in memory: queries touch a few cache lines instead of scattered records.
-  // Per slot, kStride doubles: the centre and radius of a bounding sphere (a cheap lower bound on
-  // the distance, to skip exact tests), then corners a, b, c.
-  static constexpr std::size_t kStride = 16;
-  // Embree primitives are clusters of kCluster consecutive slots: one callback tests a few
-  // neighbouring triangles stored together, which halves the memory traffic of a query.
-  static constexpr unsigned kCluster = 4;
+  // space are near in memory. Embree primitives are clusters of kCluster consecutive slots: one
+  // callback screens the whole cluster with a vectorised lower bound (calc_lower_bounds) and runs
+  // the exact test only on the few survivors. Fewer, larger primitives also mean a smaller tree.
+  static constexpr unsigned kCluster = 16;
+  // Per cluster, kSoaRows rows of kCluster doubles (structure of arrays): the triangle's bounding
+  // disc (centre x, y, z; unit plane normal x, y, z, zero for slivers; radius).
+  static constexpr std::size_t kSoaRows = 7;
   unsigned num_slots = 0;
   unsigned slot_end(unsigned prim) const { return std::min(num_slots, (prim + 1) * kCluster); }
-  std::vector<double> corners;
+  std::vector<double> corners;  // per slot: a, b, c (9 doubles), read by the exact kernels
+  std::vector<double> soa;      // per cluster: kSoaRows * kCluster doubles
   std::vector<int> triangle_of;  // slot -> row of F
   std::vector<int> slot_of;      // row of F -> slot
   double pad = 0.0;
-  // Nearest-vertex seeding of closest-point queries: a k-d tree over the used vertices and, per
-  // tree point, the slots of its incident triangles (CSR). The nearest vertex's triangles give an
-  // exact distance that is an upper bound on the answer, so Embree starts with a tight radius.
-  VertexCloud cloud;
-  std::vector<unsigned> ring_start;  // tree point i -> ring_slots[ring_start[i], ring_start[i+1])
+  double scale = 0.0;         // largest |coordinate| + diagonal of the mesh
+  Vec3 middle = Vec3::Zero();  // centre of the mesh's bounding box
+  // Welded vertices (used mesh vertices, equal positions merged so triangle soups are connected
+  // too), numbered by first use in slot order: positions, adjacency and incident slots (CSR).
+  std::vector<double> vertex_xyz;        // 3 per welded vertex
+  std::vector<unsigned> adjacent_start;  // welded vertex i -> adjacent[adjacent_start[i] ...)
+  std::vector<unsigned> adjacent;
+  std::vector<unsigned> ring_start;      // welded vertex i -> ring_slots[ring_start[i] ...)
   std::vector<unsigned> ring_slots;
-  std::vector<unsigned> seed_slots;  // construction scratch
+  std::vector<unsigned> vertex_of_slot;  // slot -> welded vertex of its first corner
+  // Seeds of queries without a hint: a k-d tree over every kSeedStride-th welded vertex (tree
+  // point i is welded vertex kSeedStride * i; evenly spread because of the slot order).
+  VertexCloud cloud;
   std::unique_ptr<VertexTree> tree;
 
   Bvh() = default;
@@ -189,19 +199,57 @@ struct MeshQuery::Bvh {
     if (device != nullptr) rtcReleaseDevice(device);
   }
   Vec3 corner(unsigned tri, int k) const {
-    const double* c = corners.data() + kStride * static_cast<std::size_t>(tri) + 4 + 3 * k;
+    const double* c = corners.data() + 9 * static_cast<std::size_t>(tri) + 3 * k;
     return {c[0], c[1], c[2]};
   }
-  // True if triangle `tri` is certainly farther from p than `limit`: outside its bounding sphere
-  // grown by `limit` (squared comparison, no square root). The radius is rounded up at build time.
-  // (A plane lower bound |n . (p - a)| was tried as well: no measurable gain on the tibia.)
-  bool is_farther(unsigned tri, const Vec3& p, double limit) const {
-    const double* c = corners.data() + kStride * static_cast<std::size_t>(tri);
-    const double cx = p.x() - c[0], cy = p.y() - c[1], cz = p.z() - c[2];
-    const double reach = limit + c[3];
-    return cx * cx + cy * cy + cz * cz > reach * reach;
+  double vertex_distance2(unsigned v, const Vec3& p) const {
+    const double* x = vertex_xyz.data() + 3 * static_cast<std::size_t>(v);
+    const double dx = p.x() - x[0], dy = p.y() - x[1], dz = p.z() - x[2];
+    return dx * dx + dy * dy + dz * dz;
   }
 };
+
+namespace {
+
+// Which triangles of one cluster (structure of arrays, see Bvh::soa) may lie within `limit`
+// of p: bit k of the result is set unless triangle k is certainly farther. The lower bound: with h
+// the height of p above the triangle's plane (unit normal n, centre c) and l the in-plane offset of
+// p from c, every point of the triangle lies within the disc of radius r about c in that plane, so
+//   dist^2 >= h^2 + max(0, |l| - r)^2.
+// A zero normal (slivers, whose computed normal is unreliable) reduces this to the bounding-sphere
+// bound max(0, |p - c| - r)^2. Rounding: the bound is accurate to ~1e-12 (|p - c| + r); callers
+// pass a limit with a larger margin. Written as a plain loop that compilers vectorise; with GCC on
+// x86-64 it is compiled twice (AVX2 and baseline SSE2) and the CPU picks the clone at load time
+// (neither uses FMA, so both round identically).
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__SANITIZE_ADDRESS__)
+__attribute__((target_clones("avx2", "default")))
+#endif
+unsigned find_candidates(const double* __restrict block, double px, double py, double pz,
+                         double limit2) {
+  constexpr unsigned K = MeshQuery::Bvh::kCluster;
+  static_assert(K <= 32, "one bit per triangle of a cluster");
+  const double* cx = block;
+  const double* cy = block + K;
+  const double* cz = block + 2 * K;
+  const double* nx = block + 3 * K;
+  const double* ny = block + 4 * K;
+  const double* nz = block + 5 * K;
+  const double* r = block + 6 * K;
+  unsigned mask = 0;
+  for (unsigned k = 0; k < K; ++k) {
+    const double dx = px - cx[k], dy = py - cy[k], dz = pz - cz[k];
+    const double h = dx * nx[k] + dy * ny[k] + dz * nz[k];
+    const double lx = dx - h * nx[k], ly = dy - h * ny[k], lz = dz - h * nz[k];
+    // max(s, 0) written without a comparison (s + |s| = 2s or 0, exactly), which GCC would not
+    // if-convert under the default trapping-math rules and so would not vectorise.
+    const double s = std::sqrt(lx * lx + ly * ly + lz * lz) - r[k];
+    const double e = 0.5 * (s + std::abs(s));
+    mask |= static_cast<unsigned>(h * h + e * e <= limit2) << k;
+  }
+  return mask;
+}
+
+}  // namespace
 
 namespace {
 
@@ -226,7 +274,7 @@ void bounds_callback(const RTCBoundsFunctionArguments* args) {
     hi[k] = -std::numeric_limits<double>::infinity();
   }
   for (unsigned t = args->primID * MeshQuery::Bvh::kCluster; t < bvh->slot_end(args->primID); ++t) {
-    const double* c = bvh->corners.data() + MeshQuery::Bvh::kStride * t + 4;
+    const double* c = bvh->corners.data() + 9 * static_cast<std::size_t>(t);
     for (int k = 0; k < 3; ++k) {
       lo[k] = std::min({lo[k], c[k], c[3 + k], c[6 + k]});
       hi[k] = std::max({hi[k], c[k], c[3 + k], c[6 + k]});
@@ -254,6 +302,7 @@ struct PointQueryState {
   int best_slot;
   TrianglePoint best;
   double radius_pad;  // absolute padding for the float rounding of the query point
+  double margin;      // absolute margin for the rounding of the lower bounds (calc_lower_bounds)
 };
 
 // Embree's radius: the exact distance, rounded up and padded so float culling stays conservative.
@@ -262,11 +311,8 @@ float padded_radius(double d, double radius_pad) {
   return round_up(d * (1.0 + 1e-6) + radius_pad);
 }
 
-// Tests one slot against the best so far; true if it became the best.
+// Exact test of one slot against the best so far; true if it became the best.
 bool test_slot(PointQueryState* q, unsigned t) {
-  // Farther than the best so far even at its bounding sphere (with a margin for the rounding of
-  // the bound): cannot win, nor tie.
-  if (q->bvh->is_farther(t, q->p, q->best_limit)) return false;
   const TrianglePoint tp =
       closest_point_on_triangle(q->p, q->bvh->corner(t, 0), q->bvh->corner(t, 1), q->bvh->corner(t, 2));
   const double d2 = (q->p - tp.point).squaredNorm();
@@ -283,11 +329,53 @@ bool test_slot(PointQueryState* q, unsigned t) {
   return false;
 }
 
+// Greedy descent over the welded vertices: move to the closest adjacent vertex while it is
+// strictly closer to p. Ends at a local minimum of the vertex distance (on a smooth surface usually
+// the nearest vertex), whose incident triangles then give a nearly exact upper bound.
+unsigned descend(const MeshQuery::Bvh& bvh, const Vec3& p, unsigned v) {
+  double best = bvh.vertex_distance2(v, p);
+  for (int step = 0; step < kMaxDescentSteps; ++step) {
+    unsigned next = v;
+    for (unsigned k = bvh.adjacent_start[v]; k < bvh.adjacent_start[v + 1]; ++k) {
+      const unsigned u = bvh.adjacent[k];
+      const double d2 = bvh.vertex_distance2(u, p);
+      if (d2 < best) {
+        best = d2;
+        next = u;
+      }
+    }
+    if (next == v) break;
+    v = next;
+  }
+  return v;
+}
+
+// Seeds the best distance with the exact distances to the triangles around the local-minimum
+// vertex reached from v. Any triangle's distance is a valid upper bound, so this never changes
+// the answer (test_slot keeps the tie rule); it only lets Embree start with a tight sphere.
+void seed_from_vertex(PointQueryState* q, unsigned v) {
+  const MeshQuery::Bvh& bvh = *q->bvh;
+  v = descend(bvh, q->p, v);
+  for (unsigned k = bvh.ring_start[v]; k < bvh.ring_start[v + 1]; ++k) test_slot(q, bvh.ring_slots[k]);
+}
+
 bool point_query_callback(RTCPointQueryFunctionArguments* args) {
+  constexpr unsigned K = MeshQuery::Bvh::kCluster;
   auto* q = static_cast<PointQueryState*>(args->userPtr);
+  const MeshQuery::Bvh& bvh = *q->bvh;
+  const unsigned first = args->primID * K;
+  const unsigned count = bvh.slot_end(args->primID) - first;
+  // A triangle is tested exactly unless its lower bound exceeds the best distance (plus the
+  // rounding margin): such a triangle can neither win nor tie.
+  const double limit = q->best_limit + q->margin;
+  unsigned mask = find_candidates(bvh.soa.data() + MeshQuery::Bvh::kSoaRows * K * args->primID,
+                                  q->p.x(), q->p.y(), q->p.z(), limit * limit);
+  if (count < K) mask &= (1u << count) - 1u;  // the last cluster may be partly empty
   bool improved = false;
-  for (unsigned t = args->primID * MeshQuery::Bvh::kCluster; t < q->bvh->slot_end(args->primID); ++t) {
-    improved = test_slot(q, t) || improved;
+  while (mask != 0) {
+    const auto k = static_cast<unsigned>(std::countr_zero(mask));
+    mask &= mask - 1u;
+    improved = test_slot(q, first + k) || improved;
   }
   if (improved) args->query->radius = padded_radius(q->best_limit, q->radius_pad);
   return improved;
@@ -457,79 +545,127 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
                     {.suggestion = "repair the mesh (fascicle mesh repair) before querying it"});
   }
   Bvh& bvh = *bvh_;
+  constexpr unsigned K = Bvh::kCluster;
   Points3 centroids(nf, 3);
   for (Eigen::Index f = 0; f < nf; ++f) {
     centroids.row(f) = (mesh_.V.row(mesh_.F(f, 0)) + mesh_.V.row(mesh_.F(f, 1)) + mesh_.V.row(mesh_.F(f, 2))) / 3.0;
   }
   const std::vector<Eigen::Index> order = spatial_order(centroids);
+  bvh.num_slots = static_cast<unsigned>(nf);
+  const std::size_t num_clusters = (bvh.num_slots + K - 1) / K;
   bvh.triangle_of.resize(static_cast<std::size_t>(nf));
   bvh.slot_of.resize(static_cast<std::size_t>(nf));
-  bvh.corners.assign(Bvh::kStride * static_cast<std::size_t>(nf), 0.0);
+  bvh.corners.assign(9 * static_cast<std::size_t>(nf), 0.0);
+  bvh.soa.assign(Bvh::kSoaRows * K * num_clusters, 0.0);
   for (std::size_t slot = 0; slot < order.size(); ++slot) {
     const Eigen::Index f = order[slot];
     bvh.triangle_of[slot] = static_cast<int>(f);
     bvh.slot_of[static_cast<std::size_t>(f)] = static_cast<int>(slot);
-    double* c = bvh.corners.data() + Bvh::kStride * slot;
+    double* c = bvh.corners.data() + 9 * slot;
     for (int k = 0; k < 3; ++k) {
-      for (int j = 0; j < 3; ++j) c[4 + 3 * k + j] = mesh_.V(mesh_.F(f, k), j);
+      for (int j = 0; j < 3; ++j) c[3 * k + j] = mesh_.V(mesh_.F(f, k), j);
     }
+    const Vec3 a = bvh.corner(static_cast<unsigned>(slot), 0), b = bvh.corner(static_cast<unsigned>(slot), 1),
+               cc = bvh.corner(static_cast<unsigned>(slot), 2);
     const Vec3 centre = centroids.row(f).transpose();
-    double r = 0.0;
-    for (int k = 0; k < 3; ++k) r = std::max(r, (mesh_.V.row(mesh_.F(f, k)).transpose() - centre).norm());
-    c[0] = centre.x();
-    c[1] = centre.y();
-    c[2] = centre.z();
-    c[3] = r * (1.0 + 1e-12) + 1e-300;  // rounded up: the bound stays a bound after rounding
+    const double r = std::max({(a - centre).norm(), (b - centre).norm(), (cc - centre).norm()});
+    // The computed normal's direction error is about 1e-16 / sin(angle at a): trust it only when
+    // that angle is not tiny (error < 1e-12), otherwise fall back to the sphere bound (n = 0).
+    Vec3 n = (b - a).cross(cc - a);
+    const double n_len = n.norm();
+    n = n_len > 1e-4 * (b - a).norm() * (cc - a).norm() ? Vec3(n / n_len) : Vec3::Zero();
+    double* block = bvh.soa.data() + Bvh::kSoaRows * K * (slot / K) + slot % K;
+    block[0 * K] = centre.x();
+    block[1 * K] = centre.y();
+    block[2 * K] = centre.z();
+    block[3 * K] = n.x();
+    block[4 * K] = n.y();
+    block[5 * K] = n.z();
+    block[6 * K] = r * (1.0 + 1e-12);  // rounded up: the bound stays a bound after rounding
   }
   const Vec3 lo = mesh_.V.colwise().minCoeff().transpose();
   const Vec3 hi = mesh_.V.colwise().maxCoeff().transpose();
   const double scale = std::max(lo.cwiseAbs().maxCoeff(), hi.cwiseAbs().maxCoeff()) + (hi - lo).norm();
   bvh.pad = std::ldexp(std::max(scale, std::numeric_limits<double>::min()), -18);
+  bvh.scale = scale;
+  bvh.middle = 0.5 * (lo + hi);
 
-  // Vertex k-d tree and vertex -> incident slots.
+  // Welded vertices: used vertices with equal coordinates merged, numbered by first use in slot
+  // order; their adjacency and incident slots; the seed k-d tree.
   {
-    std::vector<int> point_of(static_cast<std::size_t>(nv), -1);
-    std::vector<unsigned> count;
-    for (unsigned slot = 0; slot < static_cast<unsigned>(nf); ++slot) {
+    std::vector<int> rank_of(static_cast<std::size_t>(nv), -1);  // mesh vertex -> first-use rank
+    std::vector<int> used;                                        // rank -> mesh vertex
+    for (unsigned slot = 0; slot < bvh.num_slots; ++slot) {
       for (int k = 0; k < 3; ++k) {
         const int v = mesh_.F(bvh.triangle_of[slot], k);
-        int& pt = point_of[static_cast<std::size_t>(v)];
-        if (pt < 0) {
-          pt = static_cast<int>(count.size());
-          count.push_back(0);
-          for (int j = 0; j < 3; ++j) bvh.cloud.xyz.push_back(mesh_.V(v, j));
+        if (rank_of[static_cast<std::size_t>(v)] < 0) {
+          rank_of[static_cast<std::size_t>(v)] = static_cast<int>(used.size());
+          used.push_back(v);
         }
-        ++count[static_cast<std::size_t>(pt)];
       }
     }
-    bvh.ring_start.assign(count.size() + 1, 0);
-    for (std::size_t i = 0; i < count.size(); ++i) bvh.ring_start[i + 1] = bvh.ring_start[i] + count[i];
-    bvh.ring_slots.resize(bvh.ring_start.back());
-    std::vector<unsigned> fill(bvh.ring_start.begin(), bvh.ring_start.end() - 1);
-    for (unsigned slot = 0; slot < static_cast<unsigned>(nf); ++slot) {
+    std::vector<unsigned> by_position(used.size());
+    for (std::size_t i = 0; i < used.size(); ++i) by_position[i] = static_cast<unsigned>(i);
+    const auto position_less = [&](unsigned i, unsigned j) {
       for (int k = 0; k < 3; ++k) {
-        const int v = mesh_.F(bvh.triangle_of[slot], k);
-        const auto pt = static_cast<std::size_t>(point_of[static_cast<std::size_t>(v)]);
-        // A triangle repeating a vertex is listed once per corner; harmless.
-        bvh.ring_slots[fill[pt]++] = slot;
+        const double a = mesh_.V(used[i], k), b = mesh_.V(used[j], k);
+        if (a != b) return a < b;
+      }
+      return i < j;
+    };
+    std::sort(by_position.begin(), by_position.end(), position_less);
+    // Each rank's representative: the lowest rank with the same position (first in its run).
+    std::vector<unsigned> representative(used.size());
+    for (std::size_t i = 0; i < by_position.size(); ++i) {
+      const bool same = i > 0 && mesh_.V.row(used[by_position[i]]) == mesh_.V.row(used[by_position[i - 1]]);
+      representative[by_position[i]] = same ? representative[by_position[i - 1]] : by_position[i];
+    }
+    std::vector<unsigned> weld_of_rank(used.size());
+    unsigned num_welded = 0;
+    for (std::size_t i = 0; i < used.size(); ++i) {
+      weld_of_rank[i] = representative[i] == i ? num_welded++ : weld_of_rank[representative[i]];
+      if (representative[i] == i) {
+        for (int k = 0; k < 3; ++k) bvh.vertex_xyz.push_back(mesh_.V(used[i], k));
       }
     }
-    // Keep every kSeedStride-th point in the tree (points are numbered in slot order, so the
-    // subsample is spread evenly over the surface): a smaller tree is much cheaper to search from
-    // far away, and the bound it gives is only about one sample spacing looser.
-    VertexCloud all;
-    all.xyz.swap(bvh.cloud.xyz);
-    std::vector<unsigned> start;
-    start.swap(bvh.ring_start);
-    bvh.ring_start.push_back(0);
-    for (std::size_t i = 0; i < count.size(); i += kSeedStride) {
-      bvh.cloud.xyz.insert(bvh.cloud.xyz.end(), all.xyz.begin() + 3 * i, all.xyz.begin() + 3 * i + 3);
-      bvh.seed_slots.insert(bvh.seed_slots.end(), bvh.ring_slots.begin() + start[i], bvh.ring_slots.begin() + start[i + 1]);
-      bvh.ring_start.push_back(static_cast<unsigned>(bvh.seed_slots.size()));
+    const auto weld = [&](unsigned slot, int k) {
+      return weld_of_rank[static_cast<std::size_t>(rank_of[static_cast<std::size_t>(mesh_.F(bvh.triangle_of[slot], k))])];
+    };
+    // Incident slots (a triangle repeating a welded vertex is listed once).
+    std::vector<std::pair<unsigned, unsigned>> pairs;  // (welded vertex, slot or neighbour)
+    pairs.reserve(3 * static_cast<std::size_t>(nf));
+    bvh.vertex_of_slot.resize(bvh.num_slots);
+    for (unsigned slot = 0; slot < bvh.num_slots; ++slot) {
+      const unsigned w[3] = {weld(slot, 0), weld(slot, 1), weld(slot, 2)};
+      bvh.vertex_of_slot[slot] = w[0];
+      for (int k = 0; k < 3; ++k) {
+        if ((k < 1 || w[k] != w[0]) && (k < 2 || w[k] != w[1])) pairs.emplace_back(w[k], slot);
+      }
     }
-    bvh.ring_slots.swap(bvh.seed_slots);
-    bvh.seed_slots.clear();
-    bvh.seed_slots.shrink_to_fit();
+    const auto to_csr = [&](std::vector<unsigned>& start, std::vector<unsigned>& items) {
+      std::sort(pairs.begin(), pairs.end());
+      pairs.erase(std::unique(pairs.begin(), pairs.end()), pairs.end());
+      start.assign(num_welded + 1, 0);
+      for (const auto& [v, x] : pairs) ++start[v + 1];
+      for (unsigned v = 0; v < num_welded; ++v) start[v + 1] += start[v];
+      items.resize(pairs.size());
+      for (std::size_t i = 0; i < pairs.size(); ++i) items[i] = pairs[i].second;
+    };
+    to_csr(bvh.ring_start, bvh.ring_slots);
+    pairs.clear();
+    for (unsigned slot = 0; slot < bvh.num_slots; ++slot) {
+      const unsigned w[3] = {weld(slot, 0), weld(slot, 1), weld(slot, 2)};
+      for (int k = 0; k < 3; ++k) {
+        const unsigned u = w[k], v = w[(k + 1) % 3];
+        if (u == v) continue;
+        pairs.emplace_back(u, v);
+        pairs.emplace_back(v, u);
+      }
+    }
+    to_csr(bvh.adjacent_start, bvh.adjacent);
+    for (std::size_t i = 0; i < num_welded; i += kSeedStride) {
+      bvh.cloud.xyz.insert(bvh.cloud.xyz.end(), bvh.vertex_xyz.begin() + 3 * i, bvh.vertex_xyz.begin() + 3 * i + 3);
+    }
     bvh.tree = std::make_unique<VertexTree>(3, bvh.cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10));
   }
 
@@ -539,7 +675,6 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
   rtcSetSceneFlags(bvh.scene, RTC_SCENE_FLAG_ROBUST);
   rtcSetSceneBuildQuality(bvh.scene, RTC_BUILD_QUALITY_HIGH);
   RTCGeometry geom = rtcNewGeometry(bvh.device, RTC_GEOMETRY_TYPE_USER);
-  bvh.num_slots = static_cast<unsigned>(nf);
   rtcSetGeometryUserPrimitiveCount(geom, (bvh.num_slots + Bvh::kCluster - 1) / Bvh::kCluster);
   rtcSetGeometryUserData(geom, &bvh);
   rtcSetGeometryBoundsFunction(geom, bounds_callback, nullptr);
@@ -570,24 +705,20 @@ ClosestPoint MeshQuery::closest_with_hint(const Vec3& p, int hint_triangle,
   // The float query point is off by half an ulp per axis; cover it (and float arithmetic in the
   // box distance) with a few ulps of its largest coordinate.
   q.radius_pad = bvh_->pad + std::ldexp(p.cwiseAbs().maxCoeff(), -20);
-  // Seeds: exact distances to a few candidate triangles give an upper bound on the answer, so
-  // Embree's traversal starts with a tight sphere and prunes almost every node. (Any triangle's
-  // exact distance is a valid bound; test_slot keeps the tie rule, so the answer is unchanged.)
-  // With a hint (batched queries: the previous, nearby query's triangle) the k-d tree search costs
-  // more than it saves (measured with callgrind), so it only seeds queries without one.
+  q.margin = 1e-10 * ((p - bvh_->middle).norm() + bvh_->scale);
+  // Seeds: exact distances to the triangles around the vertex nearest to p (found by greedy
+  // descent from the hint's vertex, or from the nearest k-d tree sample) bound the answer from
+  // above, so Embree's traversal starts with a nearly exact sphere and prunes almost every node.
   if (hint_triangle >= 0) {
-    test_slot(&q, static_cast<unsigned>(bvh_->slot_of[static_cast<std::size_t>(hint_triangle)]));
+    const auto hint_slot = static_cast<unsigned>(bvh_->slot_of[static_cast<std::size_t>(hint_triangle)]);
+    seed_from_vertex(&q, bvh_->vertex_of_slot[hint_slot]);
   } else {
     unsigned nearest = 0;
     double nearest_d2 = 0.0;
     nanoflann::KNNResultSet<double, unsigned, unsigned> result(1);
     result.init(&nearest, &nearest_d2);
     bvh_->tree->findNeighbors(result, p.data(), nanoflann::SearchParams());
-    if (result.size() == 1 && nearest_d2 <= q.best_d2) {
-      for (unsigned k = bvh_->ring_start[nearest]; k < bvh_->ring_start[nearest + 1]; ++k) {
-        test_slot(&q, bvh_->ring_slots[k]);
-      }
-    }
+    if (result.size() == 1) seed_from_vertex(&q, static_cast<unsigned>(kSeedStride * nearest));
   }
   RTCPointQuery query;
   query.x = static_cast<float>(p.x());
