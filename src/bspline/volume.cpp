@@ -123,8 +123,8 @@ VolumeAndGradient calc_volume_and_gradient(const BSplineSolid& s) {
   return out;
 }
 
-BoundaryVolumeIntegrator::BoundaryVolumeIntegrator(const BSplineSolid& lattice)
-    : basis_(lattice.basis) {
+BoundaryVolumeIntegrator::BoundaryVolumeIntegrator(const BSplineSolid& lattice, bool allow_avx2)
+    : basis_(lattice.basis), lanes_(allow_avx2 && __builtin_cpu_supports("avx2") ? 4 : 2) {
   for (int d = 0; d < 3; ++d) {
     if (!basis_[d].periodic && !basis_[d].is_clamped()) {
       throw_bad_input(
@@ -146,7 +146,7 @@ BoundaryVolumeIntegrator::BoundaryVolumeIntegrator(const BSplineSolid& lattice)
       }
     }
     D.num_points = static_cast<int>(D.weight.size());
-    D.padded_points = (D.num_points + 1) & ~1;
+    D.padded_points = (D.num_points + lanes_ - 1) / lanes_ * lanes_;
     const int Qp = D.padded_points;
     D.dense0.assign(static_cast<std::size_t>(D.num_control) * Qp, 0.0);
     D.dense1 = D.dense0;
@@ -159,8 +159,8 @@ BoundaryVolumeIntegrator::BoundaryVolumeIntegrator(const BSplineSolid& lattice)
         D.dense0[i * Qp + q] += D.N0[q * D.width + r];
         D.dense1[i * Qp + q] += D.N1[q * D.width + r];
         D.dense_w[i * Qp + q] += D.weight[q] * D.N0[q * D.width + r];
-        D.band_lo[i] = std::min(D.band_lo[i], q & ~1);
-        D.band_hi[i] = std::max(D.band_hi[i], (q & ~1) + 2);
+        D.band_lo[i] = std::min(D.band_lo[i], q / lanes_ * lanes_);
+        D.band_hi[i] = std::max(D.band_hi[i], q / lanes_ * lanes_ + lanes_);
       }
     for (int i = 0; i < D.num_control; ++i) D.band_hi[i] = std::max(D.band_hi[i], D.band_lo[i]);
   }
@@ -168,150 +168,175 @@ BoundaryVolumeIntegrator::BoundaryVolumeIntegrator(const BSplineSolid& lattice)
 
 namespace {
 
-// One boundary face of the sum-factorised integral (see BoundaryVolumeIntegrator), for a-widths
-// WA and b-widths WB (degree + 1) known at compile time. G[coordinate][b control][a control]:
-// the face's control points minus the reference point. The face term uses the divergence theorem
-// with the field (0, 0, z) (∇· = 1): V = Σ_faces ± ∫∫ z (x_a × x_b)_z da db, which needs z, x_a
-// and x_b but not x, y. With kGradient, dV/dQ = ± ∫∫ N n da db needs the whole normal
-// n = x_a × x_b. Returns the face integral; adds the gradient rows (times sign) into grad.
+// SIMD vectors of K doubles (GCC vector extensions: K = 2 is one SSE2 register, K = 4 one AVX
+// register in the functions compiled for AVX2). Loads and stores go through memcpy (unaligned).
+// Every helper taking or returning a vector is inlined into the kernels, so no vector crosses a
+// call and GCC's note about the AVX calling convention (-Wpsabi) does not apply.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wpsabi"
+template <int K>
+struct Simd {
+  typedef double V __attribute__((vector_size(8 * K)));
+};
+#define FASCICLE_LOAD(V, p) ([](const double* q_) __attribute__((always_inline)) { \
+  V v_;                                                                              \
+  __builtin_memcpy(&v_, q_, sizeof v_);                                              \
+  return v_;                                                                         \
+}(p))
+
+// One boundary face of the sum-factorised integral (see BoundaryVolumeIntegrator) for b-width WB
+// (degree + 1) known at compile time and K a points per SIMD vector. G[coordinate][b control]
+// [a control]: the face's control points minus the reference point. The face term uses the
+// divergence theorem with the field (0, 0, z) (∇· = 1): V = Σ_faces ± ∫∫ z (x_a × x_b)_z da db,
+// which needs z, x_a and x_b but not x, y. With kGradient, dV/dQ = ∫∫ N n da db (unsigned) needs
+// the whole normal n = x_a × x_b, and is written over G (same layout). Returns the face integral.
 //
-// Layout (a points in SIMD pairs, p = pair): L[b control][p][k][lane], k = 0..2 the a-derivative
-// of the coordinates, k = 3..5 their values; T[b control][p][q][lane]. One b control's data for a
-// pair is contiguous, so the sweep addresses each of the WB rows with one pointer.
-template <bool kGradient, int WA, int WB, class Dir, class FaceIndex>
-double integrate_face(const Dir& A, const Dir& B, double* G, double* scratch, double sign,
-                      const FaceIndex& face_index, Points3* grad) {
-  using A2 = Eigen::Array2d;
-  const auto load = [](const double* p) { return A2(Eigen::Map<const A2>(p)); };
-  const auto add_to = [](double* p, const A2& v) { Eigen::Map<A2>(p) += v; };
+// Layout (a points in blocks of K, p = block): L[b control][p][k][lane], k = 0..2 the
+// a-derivative of the coordinates, k = 3..5 their values; T[b control][p][q][lane]. One b
+// control's data for a block is contiguous, so the sweep addresses each of the WB rows with one
+// pointer. Every lane does the same operations in the same order whatever K is, except the final
+// sums over lanes.
+template <bool kGradient, int WB, int K, class Dir>
+[[gnu::always_inline]] inline double face_kernel(const Dir& A, const Dir& B, double* G,
+                                                 double* scratch) {
+  typedef typename Simd<K>::V V;
+  const auto add_to = [](double* p, const V& v) __attribute__((always_inline)) {
+    V t;
+    __builtin_memcpy(&t, p, sizeof t);
+    t += v;
+    __builtin_memcpy(p, &t, sizeof t);
+  };
   const int na = A.num_control, nb = B.num_control, Qb = B.num_points;
-  const int Qp = A.padded_points;  // a points padded to whole SIMD pairs (padding: zero weight)
-  const int np = Qp / 2;
-  double* L = scratch;                                   // nb * np * 12
-  double* T = L + static_cast<std::size_t>(nb) * np * 12;  // nb * np * 6 (gradient)
-  double* wa = T + static_cast<std::size_t>(nb) * np * 6;  // Qp
+  const int Qp = A.padded_points;  // a points padded to whole blocks (padding: zero weight)
+  const int np = Qp / K;
+  const std::size_t lsize = static_cast<std::size_t>(nb) * Qp * 6;
+  double* L = scratch;      // nb * Qp * 6
+  double* T = L + lsize;    // nb * Qp * 3 (gradient)
+  double* wa = T + lsize / 2;  // Qp
   for (int qa = 0; qa < Qp; ++qa) wa[qa] = qa < A.num_points ? A.weight[qa] : 0.0;
   // dense, band-limited contraction along a: L[jb][p] = Σ_ia G[.][jb][ia] (N'_ia, N_ia)(p)
-  std::fill(L, L + static_cast<std::size_t>(nb) * np * 12, 0.0);
+  std::fill(L, L + lsize, 0.0);
   for (int jb = 0; jb < nb; ++jb) {
-    double* l = L + static_cast<std::size_t>(jb) * np * 12;
+    double* l = L + static_cast<std::size_t>(jb) * Qp * 6;
     for (int ia = 0; ia < na; ++ia) {
-      const A2 gx = A2::Constant(G[(0 * nb + jb) * na + ia]);
-      const A2 gy = A2::Constant(G[(1 * nb + jb) * na + ia]);
-      const A2 gz = A2::Constant(G[(2 * nb + jb) * na + ia]);
+      const V gx = V{} + G[(0 * nb + jb) * na + ia];
+      const V gy = V{} + G[(1 * nb + jb) * na + ia];
+      const V gz = V{} + G[(2 * nb + jb) * na + ia];
       const double* d0 = &A.dense0[ia * Qp];
       const double* d1 = &A.dense1[ia * Qp];
-      for (int qa = A.band_lo[ia]; qa < A.band_hi[ia]; qa += 2) {
-        double* c = l + qa * 6;  // pair qa / 2
-        const A2 v1 = load(d1 + qa), v0 = load(d0 + qa);
-        add_to(c + 0, gx * v1);
-        add_to(c + 2, gy * v1);
-        add_to(c + 4, gz * v1);
-        add_to(c + 6, gx * v0);
-        add_to(c + 8, gy * v0);
-        add_to(c + 10, gz * v0);
+      for (int qa = A.band_lo[ia]; qa < A.band_hi[ia]; qa += K) {
+        double* c = l + qa * 6;  // block qa / K
+        const V v1 = FASCICLE_LOAD(V, d1 + qa), v0 = FASCICLE_LOAD(V, d0 + qa);
+        add_to(c + 0 * K, gx * v1);
+        add_to(c + 1 * K, gy * v1);
+        add_to(c + 2 * K, gz * v1);
+        add_to(c + 3 * K, gx * v0);
+        add_to(c + 4 * K, gy * v0);
+        add_to(c + 5 * K, gz * v0);
       }
     }
   }
-  if constexpr (kGradient) std::fill(T, T + static_cast<std::size_t>(nb) * np * 6, 0.0);
-  // Sweep the b points; at each (a pair, b point): x_a, x_b, z, n = x_a × x_b, the volume term,
+  if constexpr (kGradient) std::fill(T, T + lsize / 2, 0.0);
+  // Sweep the b points; at each (a block, b point): x_a, x_b, z, n = x_a × x_b, the volume term,
   // and (gradient) T[jb][p][q] += w_b N_b(jb) n_q: the b half of ∫∫ N_I n.
-  A2 face = A2::Zero();
+  V face = V{};
   for (int qb = 0; qb < Qb; ++qb) {
     const double w = B.weight[qb];
-    A2 n0[WB], n1[WB], wn0[WB];
+    V n0[WB], n1[WB], wn0[WB];
     const double* rowL[WB];
     double* rowT[WB];
     for (int r = 0; r < WB; ++r) {
       const int jb = B.index[qb * WB + r];
-      n0[r] = A2::Constant(B.N0[qb * WB + r]);
-      n1[r] = A2::Constant(B.N1[qb * WB + r]);
-      wn0[r] = A2::Constant(w * B.N0[qb * WB + r]);
-      rowL[r] = L + static_cast<std::size_t>(jb) * np * 12;
-      rowT[r] = T + static_cast<std::size_t>(jb) * np * 6;
+      n0[r] = V{} + B.N0[qb * WB + r];
+      n1[r] = V{} + B.N1[qb * WB + r];
+      wn0[r] = V{} + w * B.N0[qb * WB + r];
+      rowL[r] = L + static_cast<std::size_t>(jb) * Qp * 6;
+      rowT[r] = T + static_cast<std::size_t>(jb) * Qp * 3;
     }
-    A2 row = A2::Zero();
+    V row = V{};
     for (int p = 0; p < np; ++p) {
-      const double* l = rowL[0] + p * 12;
-      A2 xa0 = n0[0] * load(l + 0), xa1 = n0[0] * load(l + 2), xa2 = n0[0] * load(l + 4);
-      A2 xb0 = n1[0] * load(l + 6), xb1 = n1[0] * load(l + 8), xb2 = n1[0] * load(l + 10);
-      A2 z = n0[0] * load(l + 10);
+      const double* l = rowL[0] + p * 6 * K;
+      V xa0 = n0[0] * FASCICLE_LOAD(V, l + 0 * K), xa1 = n0[0] * FASCICLE_LOAD(V, l + 1 * K);
+      V xa2 = n0[0] * FASCICLE_LOAD(V, l + 2 * K), xb0 = n1[0] * FASCICLE_LOAD(V, l + 3 * K);
+      V xb1 = n1[0] * FASCICLE_LOAD(V, l + 4 * K);
+      const V lz0 = FASCICLE_LOAD(V, l + 5 * K);
+      V xb2 = n1[0] * lz0, z = n0[0] * lz0;
       for (int r = 1; r < WB; ++r) {
-        l = rowL[r] + p * 12;
-        xa0 += n0[r] * load(l + 0);
-        xa1 += n0[r] * load(l + 2);
-        xa2 += n0[r] * load(l + 4);
-        xb0 += n1[r] * load(l + 6);
-        xb1 += n1[r] * load(l + 8);
-        const A2 lz = load(l + 10);
+        l = rowL[r] + p * 6 * K;
+        xa0 += n0[r] * FASCICLE_LOAD(V, l + 0 * K);
+        xa1 += n0[r] * FASCICLE_LOAD(V, l + 1 * K);
+        xa2 += n0[r] * FASCICLE_LOAD(V, l + 2 * K);
+        xb0 += n1[r] * FASCICLE_LOAD(V, l + 3 * K);
+        xb1 += n1[r] * FASCICLE_LOAD(V, l + 4 * K);
+        const V lz = FASCICLE_LOAD(V, l + 5 * K);
         xb2 += n1[r] * lz;
         z += n0[r] * lz;
       }
-      const A2 cz = xa0 * xb1 - xa1 * xb0;
-      row += load(wa + 2 * p) * (z * cz);
+      const V cz = xa0 * xb1 - xa1 * xb0;
+      row += FASCICLE_LOAD(V, wa + p * K) * (z * cz);
       if constexpr (kGradient) {
-        const A2 cx = xa1 * xb2 - xa2 * xb1, cy = xa2 * xb0 - xa0 * xb2;
+        const V cx = xa1 * xb2 - xa2 * xb1, cy = xa2 * xb0 - xa0 * xb2;
         for (int r = 0; r < WB; ++r) {
-          double* t = rowT[r] + p * 6;
-          add_to(t + 0, wn0[r] * cx);
-          add_to(t + 2, wn0[r] * cy);
-          add_to(t + 4, wn0[r] * cz);
+          double* t = rowT[r] + p * 3 * K;
+          add_to(t + 0 * K, wn0[r] * cx);
+          add_to(t + 1 * K, wn0[r] * cy);
+          add_to(t + 2 * K, wn0[r] * cz);
         }
       }
     }
     face += w * row;
   }
   if constexpr (kGradient) {
-    // dV/dQ(ia, jb) = sign Σ_qa w_a N_a(ia) T[jb][qa], added to the solid's rows.
+    // dV/dQ(ia, jb) = Σ_qa w_a N_a(ia) T[jb][qa], written over G.
     for (int jb = 0; jb < nb; ++jb) {
-      const double* t = T + static_cast<std::size_t>(jb) * np * 6;
+      const double* t = T + static_cast<std::size_t>(jb) * Qp * 3;
       for (int ia = 0; ia < na; ++ia) {
         const double* dw = &A.dense_w[ia * Qp];
-        A2 sx = A2::Zero(), sy = A2::Zero(), sz = A2::Zero();
-        for (int qa = A.band_lo[ia]; qa < A.band_hi[ia]; qa += 2) {
-          const A2 d = load(dw + qa);
-          const double* c = t + qa * 3;  // pair qa / 2
-          sx += d * load(c + 0);
-          sy += d * load(c + 2);
-          sz += d * load(c + 4);
+        V sx = V{}, sy = V{}, sz = V{};
+        for (int qa = A.band_lo[ia]; qa < A.band_hi[ia]; qa += K) {
+          const V d = FASCICLE_LOAD(V, dw + qa);
+          const double* c = t + qa * 3;  // block qa / K
+          sx += d * FASCICLE_LOAD(V, c + 0 * K);
+          sy += d * FASCICLE_LOAD(V, c + 1 * K);
+          sz += d * FASCICLE_LOAD(V, c + 2 * K);
         }
-        const int row = face_index(ia, jb);
-        (*grad)(row, 0) += sign * sx.sum();
-        (*grad)(row, 1) += sign * sy.sum();
-        (*grad)(row, 2) += sign * sz.sum();
+        double s[3] = {0.0, 0.0, 0.0};
+        for (int k = 0; k < K; ++k) s[0] += sx[k], s[1] += sy[k], s[2] += sz[k];
+        for (int q = 0; q < 3; ++q) G[(q * nb + jb) * na + ia] = s[q];
       }
     }
   }
-  return face.sum();
+  double sum = 0.0;
+  for (int k = 0; k < K; ++k) sum += face[k];
+  return sum;
+}
+#undef FASCICLE_LOAD
+#pragma GCC diagnostic pop
+
+// The kernel for pairs of points (SSE2, the x86-64 baseline) and for blocks of four compiled for
+// AVX2 (selected at run time by the integrator; no FMA contraction, so each lane rounds exactly
+// as in the SSE2 kernel).
+template <bool kGradient, int WB, class Dir>
+double face_kernel_sse2(const Dir& A, const Dir& B, double* G, double* scratch) {
+  return face_kernel<kGradient, WB, 2>(A, B, G, scratch);
+}
+template <bool kGradient, int WB, class Dir>
+__attribute__((target("avx2"))) double face_kernel_avx2(const Dir& A, const Dir& B, double* G,
+                                                        double* scratch) {
+  return face_kernel<kGradient, WB, 4>(A, B, G, scratch);
 }
 
-// Widths 2..4 (degrees 1..3) get compiled kernels; the rest the generic ones up to
-// kMaxBSplineDegree (all supported degrees are covered, so this never fails).
-template <bool kGradient, int WA, class Dir, class FaceIndex>
-double dispatch_b(const Dir& A, const Dir& B, double* G, double* scratch, double sign,
-                  const FaceIndex& fi, Points3* grad) {
-  if constexpr (WA > kMaxBSplineDegree + 1) {
-    throw_internal("B-spline degree above the supported maximum");
-  } else {
-    switch (B.width) {
-#define FASCICLE_WB(n) \
-  case n: return integrate_face<kGradient, WA, n>(A, B, G, scratch, sign, fi, grad);
-      FASCICLE_WB(1) FASCICLE_WB(2) FASCICLE_WB(3) FASCICLE_WB(4) FASCICLE_WB(5) FASCICLE_WB(6)
-      FASCICLE_WB(7) FASCICLE_WB(8)
+// Widths 1..8 (degrees 0..7, every supported degree).
+template <bool kGradient, class Dir>
+double dispatch_face(const Dir& A, const Dir& B, double* G, double* scratch, int lanes) {
+  switch (B.width) {
+#define FASCICLE_WB(n)                                                             \
+  case n:                                                                          \
+    return lanes == 4 ? face_kernel_avx2<kGradient, n>(A, B, G, scratch)           \
+                      : face_kernel_sse2<kGradient, n>(A, B, G, scratch);
+    FASCICLE_WB(1) FASCICLE_WB(2) FASCICLE_WB(3) FASCICLE_WB(4) FASCICLE_WB(5) FASCICLE_WB(6)
+    FASCICLE_WB(7) FASCICLE_WB(8)
 #undef FASCICLE_WB
-      default: throw_internal("B-spline degree above the supported maximum");
-    }
-  }
-}
-
-template <bool kGradient, class Dir, class FaceIndex>
-double dispatch_face(const Dir& A, const Dir& B, double* G, double* scratch, double sign,
-                     const FaceIndex& fi, Points3* grad) {
-  switch (A.width) {
-#define FASCICLE_WA(n) case n: return dispatch_b<kGradient, n>(A, B, G, scratch, sign, fi, grad);
-    FASCICLE_WA(1) FASCICLE_WA(2) FASCICLE_WA(3) FASCICLE_WA(4) FASCICLE_WA(5) FASCICLE_WA(6)
-    FASCICLE_WA(7) FASCICLE_WA(8)
-#undef FASCICLE_WA
     default: throw_internal("B-spline degree above the supported maximum");
   }
 }
@@ -336,9 +361,9 @@ double BoundaryVolumeIntegrator::integrate(const Points3& P, Points3* gradient) 
     const Direction& A = dir_[(c + 1) % 3];
     const Direction& B = dir_[(c + 2) % 3];
     const std::size_t g = 3 * static_cast<std::size_t>(A.num_control) * B.num_control;
-    const std::size_t qp = A.num_points + 1;  // padded to even
+    const std::size_t qp = A.padded_points;
     const std::size_t l = 3 * static_cast<std::size_t>(B.num_control) * qp;
-    need = std::max(need, g + 3 * l + 2 * qp);
+    need = std::max(need, g + 3 * l + qp);
   }
   const std::unique_ptr<double[]> scratch(new double[need]);  // uninitialised: every use writes first
   double volume = 0.0;
@@ -365,9 +390,15 @@ double BoundaryVolumeIntegrator::integrate(const Points3& P, Points3* gradient) 
           const int row = face_index(ia, jb);
           for (int q = 0; q < 3; ++q) G[(q * nb + jb) * na + ia] = P(row, q) - c0[q];
         }
-      const double face = dispatch_face<kGradient>(A, B, G, G + 3 * na * nb, sign, face_index,
-                                                   gradient);
+      const double face = dispatch_face<kGradient>(A, B, G, G + 3 * na * nb, lanes_);
       volume += sign * face;
+      if constexpr (kGradient) {
+        for (int jb = 0; jb < nb; ++jb)
+          for (int ia = 0; ia < na; ++ia) {
+            const int row = face_index(ia, jb);
+            for (int q = 0; q < 3; ++q) (*gradient)(row, q) += sign * G[(q * nb + jb) * na + ia];
+          }
+      }
     }
   }
   return volume;

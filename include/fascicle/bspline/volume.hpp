@@ -51,9 +51,12 @@ VolumeAndGradient calc_boundary_volume_and_gradient(const BSplineSolid& solid);
 // tensor-product sum factorisation: the face's control points are contracted along one direction
 // onto its quadrature points, then the other direction is swept with the first one's quadrature
 // points as the contiguous (SIMD) index. Thread-safe (const; scratch memory is per call).
+// On CPUs with AVX2 the sweep runs four points per instruction instead of two (allow_avx2 =
+// false forces the SSE2 kernel); both round every point identically, only the order of the final
+// sums differs (results agree to a few ulps; each is deterministic).
 class BoundaryVolumeIntegrator {
  public:
-  explicit BoundaryVolumeIntegrator(const BSplineSolid& lattice);
+  explicit BoundaryVolumeIntegrator(const BSplineSolid& lattice, bool allow_avx2 = true);
   // P: control points of a solid with the lattice given to the constructor.
   VolumeAndGradient calc(const Points3& P) const;
   double calc_volume(const Points3& P) const;
@@ -66,9 +69,9 @@ class BoundaryVolumeIntegrator {
     std::vector<double> weight;       // num_points
     std::vector<double> N0, N1;       // num_points x width
     std::vector<int> index;           // num_points x width
-    // The same values densely, control point major, points padded to an even count (zeros):
+    // The same values densely, control point major, points padded to whole SIMD vectors (zeros):
     // dense0/dense1/dense_w[i * padded_points + q] = N_i(t_q), N_i'(t_q), w_q N_i(t_q); and the
-    // even-aligned range [band_lo[i], band_hi[i]) of points where N_i is non-zero.
+    // vector-aligned range [band_lo[i], band_hi[i]) of points where N_i is non-zero.
     int padded_points = 0;
     std::vector<double> dense0, dense1, dense_w;
     std::vector<int> band_lo, band_hi;
@@ -76,6 +79,7 @@ class BoundaryVolumeIntegrator {
   template <bool kGradient>
   double integrate(const Points3& P, Points3* gradient) const;
   std::array<BSplineBasis, 3> basis_;
+  int lanes_ = 2;  // points per SIMD vector of the sweep: 2 (SSE2) or 4 (AVX2)
   std::array<Direction, 3> dir_;
 };
 
