@@ -94,12 +94,22 @@ FibreAnalysis analyse_fibres(const TriMesh& muscle, const Attachments& areas,
   return r;
 }
 
-DirectionDeviation compare_directions(const FibreSet& fibres, const FibreSet& tracts) {
+DirectionDeviation compare_directions(const FibreSet& fibres, const FibreSet& tracts,
+                                      double fibre_spacing_m) {
+  // Each fibre segment is cut into pieces no longer than fibre_spacing_m (same direction), so the
+  // nearest piece midpoint is the nearest point of the fibre polylines to within half the spacing.
   std::vector<Vec3> mids, dirs;
   for (const Points3& P : fibres.fibres)
     for (Eigen::Index k = 1; k < P.rows(); ++k) {
-      mids.emplace_back(0.5 * (P.row(k) + P.row(k - 1)));
-      dirs.emplace_back(P.row(k) - P.row(k - 1));
+      const Vec3 a = P.row(k - 1), b = P.row(k);
+      const double len = (b - a).norm();
+      const int pieces = fibre_spacing_m > 0.0
+                             ? std::max(1, static_cast<int>(std::ceil(len / fibre_spacing_m)))
+                             : 1;
+      for (int j = 0; j < pieces; ++j) {
+        mids.emplace_back(a + (j + 0.5) / pieces * (b - a));
+        dirs.emplace_back(b - a);
+      }
     }
   if (mids.empty()) throw_bad_input("there are no fibre segments to compare");
   Points3 M(mids.size(), 3);

@@ -29,8 +29,13 @@ Decomposition decompose_muscle(const TriMesh& muscle, const Attachments& areas,
   if (options.method == FibreMethod::template_map) {
     const TemplateMapper mapper(muscle, areas, options.mapping);
     if (mapper.is_mappable()) {
+      const double rise =
+          options.pennation_rad > 0.0
+              ? calc_pennate_rise(options.pennation_rad, mapper.get_mean_thickness(),
+                                  mapper.get_axial_length())
+              : default_pennate_rise;
       const FibreSet unit =
-          make_template_fibres(options.fibre_template, options.count, options.resolution);
+          make_template_fibres(options.fibre_template, options.count, options.resolution, rise);
       d.fibres = mapper.calc_fibres(unit, is_end_to_end(options.fibre_template));
       d.method_used = FibreMethod::template_map;
       return d;
@@ -46,7 +51,11 @@ Decomposition decompose_muscle(const TriMesh& muscle, const Attachments& areas,
   }
   const HarmonicField field = calc_harmonic_field(muscle, areas, options.harmonic);
   d.fibres = trace_harmonic_fibres(field, areas.origin,
-                                   {.count = options.count, .resolution = options.resolution});
+                                   {.count = options.count,
+                                    .resolution = options.resolution,
+                                    .stop_potential = areas.insertion_interior.rows() > 0
+                                                          ? 0.99
+                                                          : 1.0 - 1e-9});
   d.method_used = FibreMethod::harmonic;
   return d;
 }

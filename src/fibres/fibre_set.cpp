@@ -45,10 +45,24 @@ Vec2 get_r2_point(int i) {
 }
 
 FibreSet make_template_fibres(FibreTemplate t, int count, int resolution) {
+  return make_template_fibres(t, count, resolution, default_pennate_rise);
+}
+
+double calc_pennate_rise(double pennation_rad, double thickness_m, double axial_length_m) {
+  if (!(pennation_rad > 0.0 && pennation_rad < 0.5 * M_PI))
+    throw_usage("the pennation angle must be in (0, 90) degrees");
+  if (!(thickness_m > 0.0 && axial_length_m > 0.0))
+    throw_bad_input("the muscle box has no thickness or no length");
+  return std::clamp(thickness_m / (axial_length_m * std::tan(pennation_rad)), 0.02, 1.0);
+}
+
+FibreSet make_template_fibres(FibreTemplate t, int count, int resolution, double rise) {
+  if (!(rise > 0.0 && rise <= 1.0))
+    throw_usage("the pennate rise must be in (0, 1]", {.suggestion = "use a rise such as 0.35"});
   if (count < 1) throw_usage("fibre count must be at least 1", {.suggestion = "use --count 100"});
   if (resolution < 2)
     throw_usage("fibre resolution must be at least 2 points", {.suggestion = "use --resolution 15"});
-  constexpr double h = 0.35;  // rise of a pennate fibre across the cube
+  const double h = rise;  // rise of a pennate fibre across the cube
   // Keep sample points off the cube faces so mapped fibres stay off the surface.
   constexpr double inset = 0.02;
   const auto squeeze = [](double v) { return inset + (1.0 - 2.0 * inset) * v; };

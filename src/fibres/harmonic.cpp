@@ -3,6 +3,8 @@
 
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/parallel.hpp"
+#include "fascicle/fibres/attachment.hpp"
+#include "point_index.hpp"
 
 #include <Eigen/CholmodSupport>
 #include <Eigen/LU>
@@ -29,6 +31,38 @@ Eigen::Matrix<double, 4, 3> calc_basis_gradients(const TetMesh& m, Eigen::Index 
   return G;
 }
 
+double calc_mean_tet_edge(const TetMesh& m) {
+  double sum = 0.0;
+  const Eigen::Index n = std::min<Eigen::Index>(m.num_tets(), 20000);
+  for (Eigen::Index t = 0; t < n; ++t)
+    for (int a = 0; a < 4; ++a)
+      for (int b = a + 1; b < 4; ++b) sum += (m.V.row(m.T(t, a)) - m.V.row(m.T(t, b))).norm();
+  return sum / (6.0 * std::max<Eigen::Index>(n, 1));
+}
+
+
+// Per-tet gradient of the piecewise-linear field u, and per-vertex volume-weighted means.
+void calc_field_gradients(const TetMesh& m, const VecX& u, Points3& tet_gradient,
+                          Points3& vertex_gradient) {
+  tet_gradient.resize(m.num_tets(), 3);
+  vertex_gradient = Points3::Zero(m.num_vertices(), 3);
+  VecX weight = VecX::Zero(m.num_vertices());
+  for (Eigen::Index t = 0; t < m.num_tets(); ++t) {
+    double vol = 0.0;
+    const auto G = calc_basis_gradients(m, t, vol);
+    Vec3 g = Vec3::Zero();
+    for (int k = 0; k < 4; ++k) g += u(m.T(t, k)) * G.row(k).transpose();
+    if (!g.allFinite()) g.setZero();
+    tet_gradient.row(t) = g.transpose();
+    const double w = std::max(vol, 0.0);
+    for (int k = 0; k < 4; ++k) {
+      vertex_gradient.row(m.T(t, k)) += w * g.transpose();
+      weight(m.T(t, k)) += w;
+    }
+  }
+  for (Eigen::Index v = 0; v < m.num_vertices(); ++v)
+    if (weight(v) > 0.0) vertex_gradient.row(v) /= weight(v);
+}
 }  // namespace
 
 Eigen::SparseMatrix<double> calc_stiffness_matrix(const TetMesh& mesh) {
@@ -100,26 +134,53 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
   HarmonicField field;
   field.surface = muscle;
   field.tets = calc_tet_mesh(muscle, options.tets);
-  field.u = solve_laplace(field.tets, areas.origin.vertices, areas.insertion.vertices);
-  const TetMesh& m = field.tets;
-  field.tet_gradient.resize(m.num_tets(), 3);
-  field.vertex_gradient = Points3::Zero(m.num_vertices(), 3);
-  VecX weight = VecX::Zero(m.num_vertices());
-  for (Eigen::Index t = 0; t < m.num_tets(); ++t) {
-    double vol = 0.0;
-    const auto G = calc_basis_gradients(m, t, vol);
-    Vec3 g = Vec3::Zero();
-    for (int k = 0; k < 4; ++k) g += field.u(m.T(t, k)) * G.row(k).transpose();
-    if (!g.allFinite()) g.setZero();
-    field.tet_gradient.row(t) = g.transpose();
-    const double w = std::max(vol, 0.0);
-    for (int k = 0; k < 4; ++k) {
-      field.vertex_gradient.row(m.T(t, k)) += w * g.transpose();
-      weight(m.T(t, k)) += w;
-    }
+  std::vector<int> ones = areas.insertion.vertices;
+  if (areas.insertion_interior.rows() > 0) {
+    // Interior aponeurosis: tet vertices within 0.6 mean tet edges of its sample points (a layer
+    // about one element thick, so the potential's level set u = 1 is a closed wall there).
+    const detail::PointIndex sheet(areas.insertion_interior);
+    const double reach = 0.6 * calc_mean_tet_edge(field.tets);
+    std::vector<char> is_origin(field.tets.num_vertices(), 0);
+    for (int v : areas.origin.vertices) is_origin[v] = 1;
+    for (Eigen::Index v = 0; v < field.tets.num_vertices(); ++v)
+      if (!is_origin[v] && sheet.find_nearest(field.tets.V.row(v)).second <= reach * reach)
+        ones.push_back(static_cast<int>(v));
+    std::sort(ones.begin(), ones.end());
+    ones.erase(std::unique(ones.begin(), ones.end()), ones.end());
   }
-  for (Eigen::Index v = 0; v < m.num_vertices(); ++v)
-    if (weight(v) > 0.0) field.vertex_gradient.row(v) /= weight(v);
+  field.u = solve_laplace(field.tets, areas.origin.vertices, ones);
+  calc_field_gradients(field.tets, field.u, field.tet_gradient, field.vertex_gradient);
+  if (options.pennation_rad > 0.0) {
+    // Laplace-Dirichlet rule-based directions (Bayer et al. 2012, Ann Biomed Eng 40:2243, for
+    // myocardium): e_l = grad(u_along) / |.| follows the muscle from end to end, e_t = the part of
+    // grad(u) normal to e_l points from the origin to the insertion aponeurosis; the fibre runs
+    // at the pennation angle a between them: d = cos(a) e_l + sin(a) e_t.
+    if (!(options.pennation_rad < 0.5 * M_PI))
+      throw_usage("the pennation angle must be in (0, 90) degrees");
+    const Vec3 towards_origin = areas.origin.centroid - areas.insertion.centroid;
+    const Attachments ends = find_end_attachments(muscle, options.end_fraction,
+                                                  towards_origin.norm() > 0.0
+                                                      ? Vec3(towards_origin.normalized())
+                                                      : Vec3::UnitZ());
+    field.u_along = solve_laplace(field.tets, ends.origin.vertices, ends.insertion.vertices);
+    Points3 tet_along, vertex_along;
+    calc_field_gradients(field.tets, field.u_along, tet_along, vertex_along);
+    const double ca = std::cos(options.pennation_rad), sa = std::sin(options.pennation_rad);
+    const auto blend = [&](Points3& across, const Points3& along) {
+      for (Eigen::Index i = 0; i < across.rows(); ++i) {
+        const Vec3 gl = along.row(i), gt = across.row(i);
+        if (!(gl.norm() > 0.0)) continue;  // keep the across direction
+        const Vec3 el = gl.normalized();
+        const Vec3 t = gt - gt.dot(el) * el;
+        const Vec3 d = t.norm() > 1e-6 * gt.norm() && t.norm() > 0.0
+                           ? Vec3(ca * el + sa * t.normalized())
+                           : el;
+        across.row(i) = d.transpose();
+      }
+    };
+    blend(field.tet_gradient, tet_along);
+    blend(field.vertex_gradient, vertex_along);
+  }
   return field;
 }
 
@@ -161,6 +222,7 @@ struct Tracer {
   const HarmonicField& f;
   double h;
   int max_steps;
+  double u_stop;  // a fibre ends where the potential reaches this value
 
   Vec3 velocity(const Location& loc) const {
     Vec3 g = Vec3::Zero();
@@ -200,7 +262,7 @@ struct Tracer {
     Vec3 p = seed;
     int slides = 0;
     for (int step = 0; step < max_steps; ++step) {
-      if (potential(loc) >= 1.0 - 1e-9) break;
+      if (potential(loc) >= u_stop) break;
       // RK4 on the unit direction field; stages that leave the mesh fall back to an Euler step.
       const Vec3 k1 = velocity(loc);
       if (k1.squaredNorm() == 0.0) break;
@@ -237,7 +299,7 @@ struct Tracer {
       // elsewhere (a zero-flux side, left by interpolation error) it slides along the boundary.
       auto [exit, lexit] = find_exit(p, loc, next);
       if ((exit - p).norm() > 1e-3 * h) pts.push_back(exit);
-      if (potential(lexit) >= 0.999 || ++slides > max_steps / 2) break;
+      if (potential(lexit) >= std::min(u_stop, 0.999) || ++slides > max_steps / 2) break;
       const Location out = locate(f.tets, lexit.tet, next);
       int face = 0;
       for (int k = 1; k < 4; ++k)
@@ -266,14 +328,6 @@ struct Tracer {
   }
 };
 
-double calc_mean_tet_edge(const TetMesh& m) {
-  double sum = 0.0;
-  const Eigen::Index n = std::min<Eigen::Index>(m.num_tets(), 20000);
-  for (Eigen::Index t = 0; t < n; ++t)
-    for (int a = 0; a < 4; ++a)
-      for (int b = a + 1; b < 4; ++b) sum += (m.V.row(m.T(t, a)) - m.V.row(m.T(t, b))).norm();
-  return sum / (6.0 * std::max<Eigen::Index>(n, 1));
-}
 
 }  // namespace
 
@@ -308,7 +362,8 @@ FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea&
   const double edge = calc_mean_tet_edge(m);
   const double diag = (m.V.colwise().maxCoeff() - m.V.colwise().minCoeff()).norm();
   const Tracer tracer{field, options.step_scale * edge,
-                      static_cast<int>(4.0 * diag / (options.step_scale * edge)) + 10};
+                      static_cast<int>(4.0 * diag / (options.step_scale * edge)) + 10,
+                      options.stop_potential};
   FibreSet set;
   set.fibres.resize(options.count);
   std::vector<char> ok(options.count, 0);

@@ -104,7 +104,15 @@ TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
   const Eigen::SelfAdjointEigenSolver<Mat3> eig(D.transpose() * D);
   Vec3 ey = eig.eigenvectors().col(2);
   ey = (ey - ey.dot(ez) * ez).normalized();
-  const Vec3 ex = ey.cross(ez);
+  Vec3 ex = ey.cross(ez);
+  if (options.thickness_direction.norm() > 0.0) {
+    const Vec3 t = options.thickness_direction - options.thickness_direction.dot(ez) * ez;
+    if (!(t.norm() > 1e-6 * options.thickness_direction.norm()))
+      throw_usage("the thickness direction is parallel to the line of action",
+                  {.suggestion = "give a direction across the muscle"});
+    ex = t.normalized();
+    ey = ez.cross(ex);
+  }
   // Axial range: from the origin level to the insertion level, kept clear of the tips.
   const VecX s = muscle.V * ez;
   const double smin = s.minCoeff(), smax = s.maxCoeff();
@@ -193,6 +201,14 @@ TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
     const Points3 rel = out.rowwise() - X_mesh_box_.translation().transpose();
     out_xy.col(0) = rel * ex;
     out_xy.col(1) = rel * ey;
+    {
+      // Thickness along x: contour area / extent along y.
+      double area2 = 0.0;
+      for (Eigen::Index i = 0, j = out_xy.rows() - 1; i < out_xy.rows(); j = i++)
+        area2 += out_xy(j, 0) * out_xy(i, 1) - out_xy(i, 0) * out_xy(j, 1);
+      const double width = out_xy.col(1).maxCoeff() - out_xy.col(1).minCoeff();
+      if (width > 0.0) mean_thickness_ += 0.5 * std::abs(area2) / width / K;
+    }
     slices_->contour.push_back(std::move(out));
     slices_->contour_xy.push_back(std::move(out_xy));
   }

@@ -45,14 +45,17 @@ FibreAnalysis analyse_fibres(const TriMesh& muscle, const Attachments& areas,
 // calc_enclosed_volume(mesh): geometry/mass_properties.hpp.
 
 // Fibre direction vs DTI: for the midpoint of every tract segment, the angle (rad, in [0, pi/2],
-// sign of direction ignored) between the segment and the nearest fibre segment.
+// sign of direction ignored) between the segment and the fibre segment nearest to that midpoint
+// (found among the fibre segments cut into pieces of at most `fibre_spacing_m`; <= 0: whole
+// segments by their midpoints, the measure before 2026-11-24).
 struct DirectionDeviation {
   double mean_rad = 0.0;
   double stddev_rad = 0.0;
   double median_rad = 0.0;
   std::size_t segments = 0;
 };
-DirectionDeviation compare_directions(const FibreSet& fibres, const FibreSet& tracts);
+DirectionDeviation compare_directions(const FibreSet& fibres, const FibreSet& tracts,
+                                      double fibre_spacing_m = 5e-4);
 
 // Reads DTI tracts: one tract per line, "x1 y1 z1 x2 y2 z2 ...", scaled by metres_per_unit.
 FibreSet read_tracts(const std::filesystem::path& path, double metres_per_unit = 1.0);

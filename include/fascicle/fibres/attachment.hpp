@@ -5,8 +5,10 @@
 
 #include "fascicle/geometry/tri_mesh.hpp"
 
+#include <cmath>
 #include <filesystem>
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace fascicle {
@@ -24,6 +26,10 @@ struct AttachmentArea {
 struct Attachments {
   AttachmentArea origin;
   AttachmentArea insertion;
+  // Points (metres, #N x 3) sampling an insertion aponeurosis inside the muscle (a central sheet,
+  // or a segmented aponeurosis such as the tibialis anterior's); empty when the insertion is on
+  // the surface only. The harmonic method holds u = 1 there; the template method ignores it.
+  Points3 insertion_interior = Points3(0, 3);
 };
 
 // Builds an area from vertex indices (duplicates removed). Throws bad_input when the set is empty
@@ -64,6 +70,42 @@ Attachments find_bone_attachments(const TriMesh& muscle, const std::vector<TriMe
                                   double distance, bool split_by_bone = false,
                                   double end_fraction = 0.08,
                                   const Vec3& origin_towards = Vec3::UnitZ());
+
+// Muscle architecture for aponeurosis attachment areas (Blemker & Delp 2005's unipennate and
+// bipennate templates).
+enum class Architecture { unipennate, bipennate };
+Architecture parse_architecture(std::string_view name);  // "unipennate" | "pennate" | "bipennate"
+std::string to_string(Architecture a);
+
+struct AponeurosisOptions {
+  Architecture architecture = Architecture::unipennate;
+  double pennation_rad = 0.35;  // target angle between fibres and the line of action, (0, pi/2)
+  // A vertex is on a face of the box when its outward normal is within this angle of the face's
+  // outward direction (+x or -x).
+  double face_angle_rad = M_PI / 3.0;
+  double end_fraction = 0.08;     // bipennate: the insertion's surface part (distal end region)
+  double sheet_spacing_m = 1e-3;  // bipennate: spacing of the central sheet's sample points
+  Vec3 origin_towards = Vec3::UnitZ();
+  Vec3 thickness_direction = Vec3::Zero();  // zero: least variance across the principal axis
+};
+
+// Aponeurosis attachment areas derived from the muscle's shape and architecture (docs/fibres.md,
+// "Aponeurosis areas"). Box: z the principal axis (origin end towards `origin_towards`), x the
+// thickness direction, s the axial position from the origin end (0) to the insertion end (L),
+// T the mean thickness along x, d = T_f / tan(pennation) the axial offset a fibre makes while
+// crossing its thickness T_f (T for unipennate, T/2 for bipennate).
+//   unipennate: origin = the -x face over s in [0, L - d], insertion = the +x face over [d, L];
+//   bipennate:  origin = both x faces over [0, L - d]; insertion = the distal end region, and
+//               interior points on the mid-thickness sheet over [d, L] (insertion_interior).
+// d is kept within [0.2 L, 0.8 L]. Throws bad_input when an area ends up empty.
+Attachments find_aponeurosis_attachments(const TriMesh& muscle,
+                                         const AponeurosisOptions& options = {});
+
+// Adds an internal aponeurosis given as a mesh (e.g. a segmented sheet): its vertices and
+// triangle centroids that lie inside the muscle become `insertion_interior`. Throws bad_input when
+// none lies inside.
+void set_interior_aponeurosis(const TriMesh& muscle, const TriMesh& aponeurosis,
+                              Attachments& areas);
 
 // `count` points spread over the area's triangles: an area-weighted R2 low-discrepancy sequence
 // (point i picks a triangle by its first coordinate, then a point in it by uniform mapping).

@@ -20,6 +20,9 @@ struct DecomposeOptions {
   FibreTemplate fibre_template = FibreTemplate::parallel;
   int count = 100;
   int resolution = 15;
+  // > 0: the pennate templates' rise is derived from this target pennation angle and the box's
+  // mean thickness and axial length (calc_pennate_rise); 0: the fixed default rise.
+  double pennation_rad = 0.0;
   TemplateMapOptions mapping;
   HarmonicOptions harmonic;
 };

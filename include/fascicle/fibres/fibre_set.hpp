@@ -45,6 +45,20 @@ Vec2 get_r2_point(int i);
 // Throws a usage error for count < 1 or resolution < 2.
 FibreSet make_template_fibres(FibreTemplate t, int count, int resolution);
 
+// The same with the pennate templates' rise h (fraction of the cube's z extent a fibre climbs while
+// crossing x from 0 to 1; bipennate fibres cross half of x and climb h/2), 0 < h <= 1. Throws a
+// usage error for h outside (0, 1].
+FibreSet make_template_fibres(FibreTemplate t, int count, int resolution, double rise);
+
+// Default rise of the pennate templates (make_template_fibres without `rise`).
+inline constexpr double default_pennate_rise = 0.35;
+
+// The rise h that gives a fibre the pennation angle `pennation_rad` (angle to the box's z axis, the
+// line of action) in a box of thickness `thickness_m` and axial length `axial_length_m`:
+// tan(pennation) = thickness / (h * axial length), clamped to [0.02, 1]. The same h serves the
+// bipennate template (half the thickness over half the rise).
+double calc_pennate_rise(double pennation_rad, double thickness_m, double axial_length_m);
+
 // True for templates whose fibres run from the z = 0 face to the z = 1 face (parallel, curved,
 // fanned), whose ends therefore lie on the attachment areas; pennate fibres end on aponeuroses.
 bool is_end_to_end(FibreTemplate t);

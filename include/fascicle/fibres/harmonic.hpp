@@ -31,13 +31,24 @@ struct HarmonicField {
   VecX u;                  // #V potential
   Points3 vertex_gradient;  // #V x 3 volume-weighted mean of the adjacent tets' gradients (1/m)
   Points3 tet_gradient;     // #T x 3 (1/m)
+  // Pennate fields only (HarmonicOptions::pennation_rad > 0): the end-to-end potential, and
+  // vertex_gradient / tet_gradient then hold the unit fibre directions instead of grad u.
+  VecX u_along;
 };
 
 struct HarmonicOptions {
   TetOptions tets;
+  // > 0: pennate field (docs/fibres.md, "Pennate harmonic field"): fibres run at this angle to the
+  // end-to-end direction grad(u_along) (u_along: 0 / 1 on the end regions of `end_fraction`),
+  // turned towards grad(u) of the aponeurosis areas (Laplace-Dirichlet rule-based directions,
+  // Bayer et al. 2012). 0: fibres follow grad(u) (the plain harmonic method).
+  double pennation_rad = 0.0;
+  double end_fraction = 0.08;
 };
 
-// Tetrahedralises `muscle` and solves the field for the given attachment areas.
+// Tetrahedralises `muscle` and solves the field for the given attachment areas. An interior
+// insertion aponeurosis (areas.insertion_interior) adds the tet vertices within 0.6 mean tet
+// edges of its points to the u = 1 set.
 HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& areas,
                                   const HarmonicOptions& options = {});
 
@@ -45,6 +56,9 @@ struct TraceOptions {
   int count = 100;        // fibres
   int resolution = 15;    // points per fibre
   double step_scale = 0.5;  // RK4 step as a fraction of the mean tet edge length
+  // A fibre ends where u reaches this value (1 - 1e-9: on the insertion area; with an interior
+  // aponeurosis, streamlines approach its vertex layer and a value such as 0.99 ends them there).
+  double stop_potential = 1.0 - 1e-9;
 };
 
 // Traces `count` fibres: seeds spread over the origin area's triangles (area-weighted R2

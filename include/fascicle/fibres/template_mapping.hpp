@@ -22,6 +22,10 @@ struct TemplateMapOptions {
   double end_margin = 0.02;  // fraction of the axial extent kept clear of the muscle's tips
   double reroute_fraction = 0.15;  // part of each fibre end replaced by a segment to the area
   int smoothing_iterations = 4;    // Laplacian smoothing passes (ends fixed)
+  // Box x axis (the template's thickness direction, across which pennate fibres run), projected
+  // normal to the line of action; zero: x is normal to the direction of largest variance.
+  // E.g. the normal of a known aponeurosis sheet.
+  Vec3 thickness_direction = Vec3::Zero();
 };
 
 // A slice whose plane cuts the muscle into more than one closed contour: the template cannot be
@@ -46,6 +50,9 @@ class TemplateMapper {
   // origin at the origin level on the muscle's axis.
   const Transform& get_box_frame() const { return X_mesh_box_; }
   double get_axial_length() const { return axial_length_; }
+  // Mean thickness of the muscle along the box's x axis: the mean over slices of contour area /
+  // contour extent along y (m).
+  double get_mean_thickness() const { return mean_thickness_; }
   const std::vector<SliceIssue>& get_issues() const { return issues_; }
   bool is_mappable() const { return issues_.empty(); }
 
@@ -59,6 +66,7 @@ class TemplateMapper {
   TemplateMapOptions options_;
   Transform X_mesh_box_ = Transform::Identity();
   double axial_length_ = 0.0;
+  double mean_thickness_ = 0.0;
   std::vector<SliceIssue> issues_;
   std::unique_ptr<Slices> slices_;
   std::unique_ptr<MeshQuery> query_;

@@ -1,0 +1,179 @@
+// Aponeurosis attachment areas from the muscle's shape and architecture (docs/fibres.md).
+//
+// Rule (after the unipennate and bipennate templates of Blemker & Delp 2005, Ann Biomed Eng
+// 33:661, and the aponeurosis boundary conditions of Choi & Blemker 2013, PLoS ONE 8:e77576):
+// pennate fibres run between two aponeuroses that cover long strips of the muscle's surface (or a
+// sheet inside it); a fibre crossing a thickness T_f at the pennation angle a advances
+// d = T_f / tan(a) along the line of action, so the origin aponeurosis covers the proximal part
+// [0, L - d] and the insertion aponeurosis the distal part [d, L].
+#include "fascicle/core/error.hpp"
+#include "fascicle/fibres/attachment.hpp"
+#include "fascicle/geometry/mesh_query.hpp"
+
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+
+namespace fascicle {
+
+Architecture parse_architecture(std::string_view name) {
+  std::string s(name);
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
+  if (s == "unipennate" || s == "pennate") return Architecture::unipennate;
+  if (s == "bipennate") return Architecture::bipennate;
+  throw_usage("unknown muscle architecture '" + s + "'",
+              {.suggestion = "use unipennate or bipennate"});
+}
+
+std::string to_string(Architecture a) {
+  return a == Architecture::bipennate ? "bipennate" : "unipennate";
+}
+
+namespace {
+
+// Area-weighted vertex normals (unit; zero for isolated vertices).
+Points3 calc_vertex_normals(const TriMesh& m) {
+  Points3 N = Points3::Zero(m.num_vertices(), 3);
+  for (Eigen::Index f = 0; f < m.num_faces(); ++f) {
+    const Vec3 a = m.V.row(m.F(f, 0)), b = m.V.row(m.F(f, 1)), c = m.V.row(m.F(f, 2));
+    const Vec3 n = (b - a).cross(c - a);  // twice the area times the unit normal
+    for (int k = 0; k < 3; ++k) N.row(m.F(f, k)) += n.transpose();
+  }
+  for (Eigen::Index v = 0; v < N.rows(); ++v) {
+    const double len = N.row(v).norm();
+    if (len > 0.0) N.row(v) /= len;
+  }
+  return N;
+}
+
+// Per axial bin: the range of x (box thickness coordinate) and of y of the vertices.
+struct BinRanges {
+  std::vector<double> x_lo, x_hi, y_lo, y_hi;
+  double bin_length = 0.0;
+};
+
+}  // namespace
+
+Attachments find_aponeurosis_attachments(const TriMesh& muscle, const AponeurosisOptions& o) {
+  if (!(o.pennation_rad > 0.0 && o.pennation_rad < 0.5 * M_PI))
+    throw_usage("the pennation angle must be in (0, 90) degrees");
+  if (!(o.end_fraction > 0.0 && o.end_fraction < 0.5))
+    throw_usage("the end-region fraction must be in (0, 0.5)");
+  if (!(o.sheet_spacing_m > 0.0)) throw_usage("the sheet spacing must be positive");
+  // Box: z principal axis, x thickness (least variance across z), y = z x x.
+  const Vec3 ez = calc_principal_axis(muscle, o.origin_towards);
+  const Vec3 mean = muscle.V.colwise().mean();
+  Vec3 ex;
+  if (o.thickness_direction.norm() > 0.0) {
+    ex = o.thickness_direction - o.thickness_direction.dot(ez) * ez;
+    if (!(ex.norm() > 1e-6 * o.thickness_direction.norm()))
+      throw_usage("the thickness direction is parallel to the muscle's principal axis");
+    ex.normalize();
+  } else {
+    Points3 D = muscle.V.rowwise() - mean.transpose();
+    D -= (D * ez) * ez.transpose();
+    const Eigen::SelfAdjointEigenSolver<Mat3> eig(D.transpose() * D);
+    ex = eig.eigenvectors().col(1);  // col(0) is ~ez (zero variance after projection)
+    ex = (ex - ex.dot(ez) * ez).normalized();
+  }
+  const Vec3 ey = ez.cross(ex);
+  // Axial position s from the origin end (the +ez end) and the box coordinates.
+  const VecX z = muscle.V * ez;
+  const double z_hi = z.maxCoeff(), z_lo = z.minCoeff();
+  const double L = z_hi - z_lo;
+  if (!(L > 0.0)) throw_bad_input("the muscle mesh has no extent along its principal axis");
+  const VecX s = (z_hi - z.array()).matrix();
+  const VecX x = muscle.V * ex, y = muscle.V * ey;
+  // Thickness per axial bin; T = mean over the bins of the middle 80 %.
+  const int bins = 24;
+  BinRanges r;
+  r.bin_length = L / bins;
+  r.x_lo.assign(bins, 1e300);
+  r.x_hi.assign(bins, -1e300);
+  r.y_lo.assign(bins, 1e300);
+  r.y_hi.assign(bins, -1e300);
+  const auto bin_of = [&](double sv) { return std::clamp(static_cast<int>(sv / r.bin_length), 0, bins - 1); };
+  for (Eigen::Index v = 0; v < s.size(); ++v) {
+    const int b = bin_of(s(v));
+    r.x_lo[b] = std::min(r.x_lo[b], x(v));
+    r.x_hi[b] = std::max(r.x_hi[b], x(v));
+    r.y_lo[b] = std::min(r.y_lo[b], y(v));
+    r.y_hi[b] = std::max(r.y_hi[b], y(v));
+  }
+  double T = 0.0;
+  int used = 0;
+  for (int b = bins / 10; b < bins - bins / 10; ++b)
+    if (r.x_hi[b] > r.x_lo[b]) {
+      T += r.x_hi[b] - r.x_lo[b];
+      ++used;
+    }
+  if (used == 0) throw_bad_input("the muscle mesh has no thickness across its principal axis");
+  T /= used;
+  const bool bi = o.architecture == Architecture::bipennate;
+  const double crossing = bi ? 0.5 * T : T;
+  const double d = std::clamp(crossing / std::tan(o.pennation_rad), 0.2 * L, 0.8 * L);
+  const Points3 N = calc_vertex_normals(muscle);
+  const double c = std::cos(o.face_angle_rad);
+  std::vector<int> origin, insertion;
+  for (Eigen::Index v = 0; v < s.size(); ++v) {
+    const double nx = N.row(v).dot(ex);
+    const bool minus_face = nx <= -c, plus_face = nx >= c;
+    const int vi = static_cast<int>(v);
+    if (bi) {
+      if ((minus_face || plus_face) && s(v) <= L - d) origin.push_back(vi);
+      else if (s(v) >= (1.0 - o.end_fraction) * L) insertion.push_back(vi);
+    } else {
+      if (minus_face && s(v) <= L - d) origin.push_back(vi);
+      if (plus_face && s(v) >= d) insertion.push_back(vi);
+    }
+  }
+  if (origin.empty() || insertion.empty())
+    throw_bad_input("no muscle surface faces the thickness direction where the aponeuroses "
+                    "should be",
+                    {.suggestion = "give the thickness direction, or a smaller pennation angle"});
+  Attachments a{make_attachment_area(muscle, origin, "origin"),
+                make_attachment_area(muscle, insertion, "insertion")};
+  if (bi) {
+    // Central sheet at mid-thickness over [d, L], sampled on a grid and kept inside the muscle.
+    const MeshQuery query(muscle);
+    std::vector<Vec3> pts;
+    const double h = o.sheet_spacing_m;
+    for (double sv = d; sv <= L; sv += h) {
+      const int b = bin_of(sv);
+      if (!(r.x_hi[b] > r.x_lo[b])) continue;
+      const double xm = 0.5 * (r.x_lo[b] + r.x_hi[b]);
+      for (double yv = r.y_lo[b]; yv <= r.y_hi[b]; yv += h) {
+        const Vec3 p = xm * ex + yv * ey + (z_hi - sv) * ez;
+        if (query.calc_is_inside(p)) pts.push_back(p);
+      }
+    }
+    if (pts.empty()) throw_bad_input("the central aponeurosis sheet misses the muscle");
+    a.insertion_interior.resize(static_cast<Eigen::Index>(pts.size()), 3);
+    for (std::size_t i = 0; i < pts.size(); ++i) a.insertion_interior.row(i) = pts[i].transpose();
+  }
+  check_attachments(muscle, a);
+  return a;
+}
+
+void set_interior_aponeurosis(const TriMesh& muscle, const TriMesh& aponeurosis,
+                              Attachments& areas) {
+  const MeshQuery query(muscle);
+  std::vector<Vec3> pts;
+  const auto keep = [&](const Vec3& p) {
+    if (query.calc_is_inside(p)) pts.push_back(p);
+  };
+  for (Eigen::Index v = 0; v < aponeurosis.num_vertices(); ++v) keep(aponeurosis.V.row(v));
+  for (Eigen::Index f = 0; f < aponeurosis.num_faces(); ++f)
+    keep((aponeurosis.V.row(aponeurosis.F(f, 0)) + aponeurosis.V.row(aponeurosis.F(f, 1)) +
+          aponeurosis.V.row(aponeurosis.F(f, 2))) / 3.0);
+  if (pts.empty())
+    throw_bad_input("no point of the aponeurosis mesh lies inside the muscle",
+                    {.suggestion = "check the aponeurosis belongs to this muscle and uses the "
+                                   "same units and frame"});
+  areas.insertion_interior.resize(static_cast<Eigen::Index>(pts.size()), 3);
+  for (std::size_t i = 0; i < pts.size(); ++i) areas.insertion_interior.row(i) = pts[i].transpose();
+}
+
+}  // namespace fascicle
