@@ -244,6 +244,65 @@ TEST(PathModel, TwoCylindersIterateToConvergence) {
   }
 }
 
+// PathOptions::opensim_tangent_point_cache: OpenSim 4 caches each tangent point's ground position
+// when a length sum first reads it (end of the first pass), so its reported length is the straight
+// pieces between first-pass tangent points plus the last pass's arcs. Without the option the
+// length is that of the converged path (its vertices and arcs).
+TEST(PathModel, OpenSimTangentPointCacheKeepsFirstPassStraightPieces) {
+  PinModel pin;
+  PathSetSpec spec;
+  for (int k = 0; k < 2; ++k) {
+    WrapObjectSpec c;
+    c.name = k == 0 ? "c0" : "c1";
+    c.body = k == 0 ? "ground" : "arm";
+    c.shape = WrapShape::cylinder;
+    c.radius = 0.1;
+    c.length = 1.0;
+    c.X_body_wrap.translation() = k == 0 ? Vec3(0.5, 0.0, 0) : Vec3(-0.5, 0.0, 0);
+    c.quadrant = WrapQuadrant::pos_y;
+    spec.wrap_objects.push_back(c);
+  }
+  GeometryPathSpec path;
+  path.name = "m";
+  path.points = {fixed_point("o", "ground", {1.0, -0.05, 0.02}),
+                 fixed_point("i", "arm", {-1.0, -0.05, -0.03})};
+  path.wraps = {{.wrap_object = "c0"}, {.wrap_object = "c1"}};
+  spec.paths.push_back(path);
+  spec.options.tolerance_m = 1e-13;
+  spec.options.max_iterations = 100;
+  const PathSetModel consistent = compile_paths(spec, pin.names);
+  spec.options.opensim_tangent_point_cache = true;
+  const PathSetModel cached = compile_paths(spec, pin.names);
+  spec.options.max_iterations = 1;
+  const PathSetModel first_pass = compile_paths(spec, pin.names);
+  for (double q : {0.1, 0.2, 0.3}) {
+    const std::vector<Transform> X = pin.X(q);
+    const VecX qv = VecX::Constant(1, q);
+    PathResult a, b, f;
+    calc_path(consistent, 0, X, qv, a);
+    calc_path(cached, 0, X, qv, b);
+    calc_path(first_pass, 0, X, qv, f);
+    ASSERT_EQ(b.vertices.size(), 6u);
+    ASSERT_EQ(f.vertices.size(), 6u);
+    EXPECT_GT(b.iterations, 1);
+    // The same converged path (vertices, arcs); only the reported length differs.
+    EXPECT_NEAR(a.length_m, calc_path_length(a), 1e-15);
+    EXPECT_NEAR(calc_path_length(b), a.length_m, 1e-12);
+    double expected = 0;
+    for (size_t i = 0; i + 1 < b.vertices.size(); ++i) {
+      EXPECT_EQ(b.vertices[i].wrap, f.vertices[i].wrap);
+      EXPECT_EQ(b.vertices[i].tangent, f.vertices[i].tangent);
+      if (b.vertices[i].tangent == 1 && b.vertices[i + 1].wrap == b.vertices[i].wrap) {
+        expected += b.wraps[b.vertices[i].wrap].result.arc_length;
+      } else {
+        expected += (f.vertices[i + 1].p_ground - f.vertices[i].p_ground).norm();
+      }
+    }
+    EXPECT_NEAR(b.length_m, expected, 1e-12) << q;
+    EXPECT_GT(std::abs(b.length_m - a.length_m), 1e-6) << q;  // the tangent points did move
+  }
+}
+
 TEST(PathModel, ActionLineVariants) {
   PinModel pin;
   PathSetSpec spec;
