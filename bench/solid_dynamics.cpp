@@ -37,7 +37,7 @@ void BM_BackwardEulerStep(benchmark::State& state) {
   auto m = make_model(degree, q, VolumeMethod::exact);
   SolverOptions o;
   o.refresh_stiffness = state.range(2) != 0;
-  o.reuse_factorisation_steps = state.range(2) == 2 ? 20 : 0;
+  o.reuse_factorisation_steps = state.range(2) == 2 ? 20 : state.range(2) >= 10 ? static_cast<int>(state.range(2)) : 0;
   o.supernodal = state.range(3) != 0;
   o.newton_tolerance = 1e-6;
   SolidDynamicsSolver solver(m, o);
@@ -61,8 +61,13 @@ void BM_BackwardEulerStep(benchmark::State& state) {
 }
 BENCHMARK(BM_BackwardEulerStep)
     ->Args({2, 3, 1, 1})->Args({2, 2, 1, 1})->Args({2, 2, 1, 0})->Args({2, 2, 0, 1})
-    ->Args({2, 2, 2, 1})->Args({3, 4, 1, 1})->Args({3, 2, 2, 1})
+    ->Args({2, 2, 2, 1})->Args({3, 4, 1, 1})->Args({3, 2, 2, 1})->Args({3, 2, 1, 1})
+    ->Args({3, 2, 50, 1})->Args({3, 2, 200, 1})
     ->Unit(benchmark::kMillisecond);
+// The target row (issue 10: a cubic 6 x 6 x 10 solid) with a fixed number of steps, for a
+// load-independent instruction count: valgrind --tool=callgrind --toggle-collect='*::step*'.
+BENCHMARK(BM_BackwardEulerStep)->Name("BM_CubicStepFixedCount")->Args({3, 2, 2, 1})
+    ->Iterations(200)->Unit(benchmark::kMillisecond);
 
 void BM_ForceEvaluation(benchmark::State& state) {
   auto m = make_model(static_cast<int>(state.range(0)), static_cast<int>(state.range(1)),
@@ -74,6 +79,7 @@ void BM_ForceEvaluation(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_ForceEvaluation)->Args({2, 2, 0})->Args({2, 2, 1})->Args({2, 3, 1})->Args({3, 4, 1})
+    ->Args({3, 2, 0})->Args({3, 2, 1})
     ->Unit(benchmark::kMillisecond);
 
 // Passive sag under gravity between fixed ends (the benign case: no activation).

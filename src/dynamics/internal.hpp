@@ -18,14 +18,20 @@ int find_block(const SolidDynamicsModel& m, int I, int J);  // I >= J
 // Pose of body b (identity for b < 0); throws bad_input when b is out of range of a non-empty X.
 Transform get_body_pose(const std::vector<Transform>& X_now_rest, int b);
 
+// F = Σ_a P_a g_aᵀ over a quadrature point's support.
+Mat3 calc_deformation_gradient(const Points3& P, const int* idx, const Vec3* g, int count);
+// Fibre stretch |F a0| at every quadrature point.
+std::vector<double> calc_fibre_stretches(const SolidDynamicsModel& m, const Points3& P);
+
 // calc_forces reusing `out` (its stiffness keeps the pattern between calls).
 void calc_forces_into(const SolidDynamicsModel& model, const Points3& P, const Points3& V,
                       double activation, bool with_stiffness,
                       const std::vector<Transform>& X_now_rest, ForceEvaluation& out,
-                      double volume_hessian_scale = 0.0, const Points3* P_start = nullptr,
-                      double step_h = 0.0);
-// P_start, step_h (backward Euler): the force–velocity factor uses the fibre stretch rate
-// (λ − λ_start)/h of the step instead of the velocities V.
+                      double volume_hessian_scale = 0.0,
+                      const std::vector<double>* lambda_start = nullptr, double step_h = 0.0);
+// lambda_start (per quadrature point, calc_fibre_stretches at the step's start), step_h (backward
+// Euler): the force–velocity factor uses the fibre stretch rate (λ − λ_start)/h of the step
+// instead of the velocities V.
 // volume_hessian_scale: adds that multiple of the Hessian of V (by the model's quadrature) to the
 // stiffness only (the Lagrange multiplier or penalty pressure times ∂²V).
 

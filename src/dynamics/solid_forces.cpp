@@ -14,6 +14,33 @@
 namespace fascicle {
 namespace dynamics_detail {
 
+Mat3 calc_deformation_gradient(const Points3& P, const int* idx, const Vec3* g, int count) {
+  // F = Σ_a P_a g_aᵀ, reading the column-major #P x 3 storage directly.
+  const Eigen::Index n = P.rows();
+  const double* px = P.data();
+  const double* py = px + n;
+  const double* pz = py + n;
+  Mat3 F = Mat3::Zero();
+  for (int a = 0; a < count; ++a) {
+    const int i = idx[a];
+    const Vec3 x(px[i], py[i], pz[i]);
+    F.col(0) += g[a][0] * x;
+    F.col(1) += g[a][1] * x;
+    F.col(2) += g[a][2] * x;
+  }
+  return F;
+}
+
+std::vector<double> calc_fibre_stretches(const SolidDynamicsModel& m, const Points3& P) {
+  std::vector<double> out(m.quadrature.size(), 1.0);
+  for (std::size_t qi = 0; qi < m.quadrature.size(); ++qi) {
+    const QuadraturePoint& q = m.quadrature[qi];
+    const Mat3 F = calc_deformation_gradient(P, &m.support_index[q.first], &m.support_g[q.first], q.count);
+    out[qi] = (F * q.fibre_rest).norm();
+  }
+  return out;
+}
+
 Eigen::SparseMatrix<double> make_pattern_matrix(const SolidDynamicsModel& m) {
   const int n = static_cast<int>(m.block_ptr.size()) - 1;
   Eigen::SparseMatrix<double> K(3 * n, 3 * n);
@@ -170,8 +197,8 @@ Mat9 calc_material_tangent(const SolidDynamicsSpec& s, const QuadraturePoint& q,
 
 void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Points3& V,
                       double activation, bool with_stiffness, const std::vector<Transform>& X,
-                      ForceEvaluation& out, double volume_hessian_scale, const Points3* P_start,
-                      double step_h) {
+                      ForceEvaluation& out, double volume_hessian_scale,
+                      const std::vector<double>* lambda_start, double step_h) {
   const int n = static_cast<int>(P.rows());
   const SolidDynamicsSpec& s = m.spec;
   out.force.setZero(3 * n);
@@ -200,20 +227,16 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
     const QuadraturePoint& q = m.quadrature[qi];
     const int* idx = &m.support_index[q.first];
     const Vec3* g = &m.support_g[q.first];
-    Mat3 F = Mat3::Zero();
-    for (int a = 0; a < q.count; ++a) F += P.row(idx[a]).transpose() * g[a].transpose();
+    const Mat3 F = calc_deformation_gradient(P, idx, g, q.count);
     const double J = F.determinant();
     if (!(J > 0.0)) throw_inverted(m, q, J);
     ForceVelocity fv;
-    if (P_start && step_h > 0.0 && !q.tendon && activation > 0.0) {
-      Mat3 Fn = Mat3::Zero();
-      for (int a = 0; a < q.count; ++a) Fn += P_start->row(idx[a]).transpose() * g[a].transpose();
+    if (lambda_start && step_h > 0.0 && !q.tendon && activation > 0.0) {
       fv.implicit = true;
-      fv.lambda_n = (Fn * q.fibre_rest).norm();
+      fv.lambda_n = (*lambda_start)[qi];
       fv.inv_h_vmax = 1.0 / (step_h * vmax);
     } else if (V.rows() == n && !q.tendon && activation > 0.0) {
-      Mat3 Fdot = Mat3::Zero();
-      for (int a = 0; a < q.count; ++a) Fdot += V.row(idx[a]).transpose() * g[a].transpose();
+      const Mat3 Fdot = calc_deformation_gradient(V, idx, g, q.count);
       const Vec3 Fa = F * q.fibre_rest;
       const double ldot = Fa.dot(Fdot * q.fibre_rest) / Fa.norm();
       fv.fixed = std::clamp(degroote_force_velocity(ldot / vmax).value, 0.0, 1.8);

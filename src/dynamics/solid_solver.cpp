@@ -36,6 +36,15 @@ struct SolidDynamicsSolver::Workspace {
   int factor_age = -1;       // steps since the factorisation (−1: none valid)
   double factor_h = 0.0;     // time step the factorisation was made for
   VecX solve(const VecX& b) { return use_llt ? VecX(llt.solve(b)) : VecX(ldlt.solve(b)); }
+  // Two right-hand sides in one pass over the factor.
+  Eigen::Matrix<double, Eigen::Dynamic, 2> solve2(const VecX& b0, const VecX& b1) {
+    Eigen::Matrix<double, Eigen::Dynamic, 2> B(b0.size(), 2);
+    B.col(0) = b0;
+    B.col(1) = b1;
+    if (use_llt) return llt.solve(B);
+    return ldlt.solve(B);
+  }
+  double last_potential_J = NAN;  // backward Euler: potential energy at the accepted state
   // Factorises A: supernodal LLᵀ when allowed and positive definite, else LDLᵀ.
   bool factorise(bool supernodal) {
     use_llt = false;
@@ -69,11 +78,27 @@ namespace {
 
 // y = M x for interleaved x (M: #P x #P node matrix).
 VecX apply_mass(const Eigen::SparseMatrix<double>& M, const VecX& x) {
+  // y_J = Σ_I M_IJ x_I per coordinate (M symmetric, column-major).
   const Eigen::Index n = M.rows();
-  Eigen::Map<const Eigen::Matrix<double, 3, Eigen::Dynamic>> X(x.data(), 3, n);
-  VecX y(3 * n);
-  Eigen::Map<Eigen::Matrix<double, 3, Eigen::Dynamic>> Y(y.data(), 3, n);
-  Y = X * M;  // M symmetric
+  VecX y = VecX::Zero(3 * n);
+  const int* outer = M.outerIndexPtr();
+  const int* inner = M.innerIndexPtr();
+  const double* val = M.valuePtr();
+  const double* xp = x.data();
+  double* yp = y.data();
+  for (Eigen::Index J = 0; J < n; ++J) {
+    double y0 = 0.0, y1 = 0.0, y2 = 0.0;
+    for (int p = outer[J]; p < outer[J + 1]; ++p) {
+      const double v = val[p];
+      const double* xi = xp + 3 * inner[p];
+      y0 += v * xi[0];
+      y1 += v * xi[1];
+      y2 += v * xi[2];
+    }
+    yp[3 * J] = y0;
+    yp[3 * J + 1] = y1;
+    yp[3 * J + 2] = y2;
+  }
   return y;
 }
 
@@ -191,6 +216,7 @@ StepReport SolidDynamicsSolver::step(double dt, const StepInputs& in) {
     h = std::min(h, remaining);
     SolidState trial = state_;
     StepReport r;
+    ws_->last_potential_J = NAN;
     try {
       // Attachment targets are interpolated linearly in time across sub-intervals.
       r = try_step(h, in, trial);
@@ -220,7 +246,14 @@ StepReport SolidDynamicsSolver::step(double dt, const StepInputs& in) {
     }
     double E = NAN;
     try {
-      E = calc_energies(m, trial, in.X_now_rest).total();
+      // Backward Euler and quasi-static: the potential of the accepted Newton iterate (before
+      // the volume projection's rounding-level correction) plus the kinetic energy.
+      if (options_.integrator != Integrator::symplectic_euler && std::isfinite(ws_->last_potential_J)) {
+        const VecX v = flatten_points(trial.V);
+        E = ws_->last_potential_J + 0.5 * v.dot(apply_mass(m.mass_matrix, v));
+      } else {
+        E = calc_energies(m, trial, in.X_now_rest).total();
+      }
     } catch (const Error& e) {
       if (e.kind() != ErrorKind::numerical) throw;
       throw_numerical(fmt::format("solid '{}' at t = {:.6g} s: {}; the last good state is kept",
@@ -322,8 +355,10 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   for (int i = 0; i < 3 * n; ++i)
     if (w.fixed_dof[i]) x[i] = target[i];
   const Points3 V_start = s.V;
-  const Points3 P_start = s.P;  // force–velocity from the step's stretch rate (implicit)
-  const Points3* fv_from = quasi ? nullptr : &P_start;
+  // Force–velocity from the step's stretch rate (implicit): fibre stretches at the step's start.
+  const std::vector<double> lambda_start =
+      quasi ? std::vector<double>() : dynamics_detail::calc_fibre_stretches(m, s.P);
+  const std::vector<double>* fv_from = quasi ? nullptr : &lambda_start;
   // Volume: the penalty enters with its Gauss–Newton rank-one Hessian c g gᵀ (Sherman–Morrison);
   // its damping acts on (V − V_n)/h so that it has the potential d/(2 V0 h) (V − V_n)². The exact
   // constraint enters Newton as a Lagrange multiplier λ on the linearised constraint
@@ -341,9 +376,10 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
                         d_vol * (w.fe.volume_m3 - V_n);
     return 0.0;
   };
-  auto merit = [&](const VecX& xx, const ForceEvaluation& fe) {
+  // M (x − x̃) is shared by the merit and the residual of the same point (Mdx below).
+  auto merit = [&](const VecX& xx, const ForceEvaluation& fe, const VecX& Mdx) {
     const VecX dx = xx - x_tilde;
-    double phi = 0.5 * inertia / (h * h) * dx.dot(apply_mass(m.mass_matrix, dx)) + fe.energy_J +
+    double phi = 0.5 * inertia / (h * h) * dx.dot(Mdx) + fe.energy_J +
                  fe.active_energy_J - f_ext.dot(xx);
     if (has_D && !quasi) {
       const VecX d = xx - x_n;
@@ -354,8 +390,8 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     return phi;
   };
   // Residual of the step equations without the multiplier term; g receives the masked ∇V.
-  auto residual = [&](const VecX& xx, const ForceEvaluation& fe, VecX& g) {
-    VecX r = inertia / (h * h) * apply_mass(m.mass_matrix, xx - x_tilde) - fe.force - f_ext;
+  auto residual = [&](const VecX& xx, const ForceEvaluation& fe, const VecX& Mdx, VecX& g) {
+    VecX r = inertia / (h * h) * Mdx - fe.force - f_ext;
     if (has_D && !quasi) r += apply_lower(w.D, xx - x_n) / h;
     if (penalty || exact) {
       g = fe.volume_gradient;
@@ -369,6 +405,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   };
   const double tol = options_.newton_tolerance * w.size_m;
   calc_forces_into(m, unflatten_points(x), V_start, a, false, in.X_now_rest, w.fe, 0.0, fv_from, h);
+  VecX Mdx = apply_mass(m.mass_matrix, x - x_tilde);
   bool factored = false;
   bool converged = false;
   int nonmonotone_left = 3;
@@ -378,7 +415,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     ++rep.newton_iterations;
     const VecX d = x - x_n;
     VecX g;
-    VecX r = residual(x, w.fe, g);
+    VecX r = residual(x, w.fe, Mdx, g);
     // A lagged factorisation from an earlier step is kept while Newton converges quickly.
     const bool reuse = options_.reuse_factorisation_steps > 0 && it == 0 && w.factor_age >= 0 &&
                        w.factor_age < options_.reuse_factorisation_steps && w.factor_h == h;
@@ -405,12 +442,17 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
       w.factor_h = h;
       factored = true;
     }
-    VecX y = w.solve(-r);
+    VecX y, z;
+    if (penalty || exact) {
+      const Eigen::Matrix<double, Eigen::Dynamic, 2> yz = w.solve2(-r, g);
+      y = yz.col(0);
+      z = yz.col(1);
+    } else {
+      y = w.solve(-r);
+    }
     if (penalty) {
-      const VecX z = w.solve(g);
       y -= (c_rank * g.dot(y) / (1.0 + c_rank * g.dot(z))) * z;
     } else if (exact) {
-      const VecX z = w.solve(g);
       const double gz = g.dot(z);
       if (gz > 0.0) {
         lambda = (g.dot(y) + (w.fe.volume_m3 - V0)) / gz;
@@ -422,13 +464,15 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     if (!y.allFinite()) throw_numerical("the Newton step is not finite");
     // Backtracking line search on the incremental potential (the Lagrangian for the exact
     // constraint); inverted trials are rejected.
-    double phi = merit(x, w.fe);
+    double phi = merit(x, w.fe, Mdx);
     double alpha = 1.0;
     bool accepted = false;
     ForceEvaluation trial_fe, full_fe;
     bool full_ok = false;  // the full step is not inverted (kept for a non-monotone step)
-    auto accept = [&](const VecX& xt, ForceEvaluation& fe) {
+    auto accept = [&](const VecX& xt, ForceEvaluation& fe, VecX* Mdx_t) {
       x = xt;
+      if (Mdx_t) std::swap(Mdx, *Mdx_t);
+      else Mdx = apply_mass(m.mass_matrix, x - x_tilde);
       std::swap(w.fe.force, fe.force);
       w.fe.energy_J = fe.energy_J;
       w.fe.active_energy_J = fe.active_energy_J;
@@ -449,16 +493,17 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
         full_ok = true;
         full_fe = trial_fe;
       }
-      const double phi_t = merit(xt, trial_fe);
+      VecX Mdx_t = apply_mass(m.mass_matrix, xt - x_tilde);
+      const double phi_t = merit(xt, trial_fe, Mdx_t);
       // The implicit force–velocity term has no potential: a clear drop of the residual is
       // accepted too.
       VecX gt;
-      VecX rt = residual(xt, trial_fe, gt);
+      VecX rt = residual(xt, trial_fe, Mdx_t, gt);
       if (exact) rt += lambda * gt;
       if (phi_t <= phi + 1e-10 * std::abs(phi) + 1e-14 ||
           rt.lpNorm<Eigen::Infinity>() < 0.5 * rep.residual ||
           alpha * y.lpNorm<Eigen::Infinity>() < tol) {
-        accept(xt, trial_fe);
+        accept(xt, trial_fe, &Mdx_t);
         break;
       }
     }
@@ -479,7 +524,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     if (!accepted && full_ok && nonmonotone_left > 0) {
       --nonmonotone_left;
       alpha = 1.0;
-      accept(VecX(x + y), full_fe);
+      accept(VecX(x + y), full_fe, nullptr);
     }
     if (!accepted) {
       // Already at the solution within rounding: the merit cannot decrease any more.
@@ -504,6 +549,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
                                 options_.max_newton_iterations, rep.residual));
   s.P = unflatten_points(x);
   s.V = quasi ? Points3::Zero(n, 3) : unflatten_points((x - x_n) / h);
+  w.last_potential_J = w.fe.energy_J;
   project_volume(s, h, rep);
   w.last_lambda = lambda;
   if (w.factor_age >= 0) ++w.factor_age;
