@@ -374,12 +374,13 @@ double SmoothSegmentedCurve::solve_u(const Fast& f, double x) const {
 
 [[gnu::always_inline]] inline int SmoothSegmentedCurve::find_segment(double x) const {
   if (x < x_begin_) return -1;
-  // Branch-free: the number of segments ending before x (all of them for NaN).
+  // (A branch-free count was tried: slower, the predicted branch lets the solve start early.)
   const int n = static_cast<int>(segment_ends_.size());
   const double* ends = segment_ends_.data();
-  int i = 0;
-  for (int k = 0; k < n; ++k) i += !(x <= ends[k]);
-  return i;
+  for (int i = 0; i < n; ++i) {
+    if (x <= ends[i]) return i;
+  }
+  return n;
 }
 
 CurvePoint SmoothSegmentedCurve::calc(double x) const {
@@ -447,13 +448,16 @@ CurveJet SmoothSegmentedCurve::calc_jet(double x) const {
   at(u, X, Y);
   double du = 0.0;
   bool taylor = false;
+  // Two reciprocals, 1/x'(u) at the guess and 1/x'(u + δ), instead of four divisions: the
+  // solver's critical path runs through this chain.
+  double inv_x1 = 1.0 / X[1];
   if (X[1] > 0.0) {
     // One Chebyshev step on x(u) = x from the tabulated guess (typically |δ| < 1e-9): the u
     // error after it is O(δ³) (< 1e-20) and y, y', y'' follow from their Taylor expansions
     // about the guess to third order, so no second evaluation is needed.
-    const double dn = -X[0] / X[1];
+    const double dn = -X[0] * inv_x1;
     if (std::abs(dn) <= 1e-7) {
-      du = dn - 0.5 * X[2] / X[1] * dn * dn;
+      du = dn - 0.5 * X[2] * inv_x1 * dn * dn;
       taylor = true;
     }
   }
@@ -464,8 +468,10 @@ CurveJet SmoothSegmentedCurve::calc_jet(double x) const {
   const double h = 0.5 * du;
   const double yu = Y[1] + du * (Y[2] + h * Y[3]), xu = X[1] + du * (X[2] + h * X[3]);
   const double yuu = Y[2] + du * Y[3], xuu = X[2] + du * X[3];
-  const double dydx = yu / xu;
-  return {Y[0] + du * (Y[1] + h * (Y[2] + du * Y[3] / 3.0)), dydx, (yuu - dydx * xuu) / (xu * xu)};
+  const double inv_xu = 1.0 / xu;
+  const double dydx = yu * inv_xu;
+  return {Y[0] + du * (Y[1] + h * (Y[2] + du * Y[3] / 3.0)), dydx,
+          (yuu - dydx * xuu) * (inv_xu * inv_xu)};
 }
 
 double SmoothSegmentedCurve::calc_integral(double x) const {

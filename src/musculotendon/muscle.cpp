@@ -359,9 +359,12 @@ double calc_equilibrium_start(const Musculotendon& m, double f_slack, double dFm
   CurvePoint ft;    // the tendon curve there (closed forms where the inverse is exact)
   switch (m.params.model) {
     case MuscleModel::millard2012:
+    {
       t1 = m.millard.tendon_force_length.calc_inverse_estimate(f_slack);
-      ft = calc_tendon_force_length(m, t1);
+      const CurveJet j = m.millard.tendon_force_length.calc_jet(t1);  // shorter chain than calc
+      ft = {j.value, j.derivative};
       break;
+    }
     case MuscleModel::thelen2003: {
       const ThelenCurveConstants& k = m.thelen_constants;
       if (f_slack >= detail::kThelenToeForce) {
