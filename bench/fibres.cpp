@@ -4,7 +4,6 @@
 #include "fascicle/fibres/decompose.hpp"
 #include "fascicle/io/mesh_io.hpp"
 
-#include <Eigen/Eigenvalues>
 #include <benchmark/benchmark.h>
 
 #include <filesystem>
@@ -177,13 +176,6 @@ const ArchitectureCase architecture_cases[] = {
     {"bolsterlee_TA", "bolsterlee_dti/TA.stl", Architecture::bipennate, 9.6, 0.0683,
      "bolsterlee_dti/tracts_TA.txt", "bolsterlee_dti/TA_apo.stl"},
 };
-
-// The least-variance direction of a sheet's vertices (its mean normal).
-Vec3 calc_sheet_normal(const TriMesh& sheet) {
-  const Points3 D = sheet.V.rowwise() - sheet.V.colwise().mean();
-  const Eigen::SelfAdjointEigenSolver<Mat3> eig(D.transpose() * D);
-  return eig.eigenvectors().col(0);
-}
 
 void BM_ValidateArchitecture(benchmark::State& state) {
   const ArchitectureCase& c = architecture_cases[state.range(0)];

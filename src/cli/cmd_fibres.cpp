@@ -12,6 +12,7 @@
 #include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
 
+#include <cmath>
 #include <memory>
 #include <sstream>
 
@@ -26,6 +27,10 @@ struct FibresArgs {
   std::string fibre_template = "parallel", method = "template";
   int count = 100, resolution = 15;
   std::string out, report, csv;
+  std::string attachments;          // "" (from the other options) or "aponeurosis"
+  std::string architecture = "unipennate";
+  double pennation_deg = 0.0;       // 0: fixed template rise
+  std::string aponeurosis;          // interior insertion aponeurosis mesh
 };
 
 std::vector<std::string> split_list(const std::string& s) {
@@ -57,9 +62,47 @@ void run_fibres(const FibresArgs& a) {
   opt.resolution = a.resolution;
   const LengthUnit unit = parse_length_unit(a.units);
   const double m_per_unit = metres_per(unit);
+  const bool aponeurosis_areas = a.attachments == "aponeurosis";
+  if (!a.attachments.empty() && !aponeurosis_areas)
+    throw_usage("unknown --attachments '" + a.attachments + "'",
+                {.suggestion = "use --attachments aponeurosis, or leave it out (landmarks, bones "
+                               "or end regions from the other options)"});
+  if (aponeurosis_areas && !(a.pennation_deg > 0.0))
+    throw_usage("--attachments aponeurosis needs the muscle's pennation angle",
+                {.suggestion = "add --pennation-deg, e.g. 9.9 for the medial gastrocnemius "
+                               "(Ward et al. 2009)"});
+  if (!a.aponeurosis.empty() && !aponeurosis_areas)
+    throw_usage("--aponeurosis needs --attachments aponeurosis");
+  if (aponeurosis_areas && (!a.origin.empty() || !a.bones.empty()))
+    throw_usage("--attachments aponeurosis cannot be combined with landmarks or bones");
+  const Architecture architecture = parse_architecture(a.architecture);
+  opt.pennation_rad = a.pennation_deg * M_PI / 180.0;
   const TriMesh muscle = load_solid(a.mesh, unit);
   Attachments areas;
-  if (!a.origin.empty() || !a.insertion.empty()) {
+  if (aponeurosis_areas) {
+    AponeurosisOptions ao;
+    ao.architecture = architecture;
+    ao.pennation_rad = opt.pennation_rad;
+    ao.end_fraction = a.end_fraction;
+    TriMesh sheet;
+    if (!a.aponeurosis.empty()) {
+      sheet = read_mesh(a.aponeurosis, unit);
+      ao.thickness_direction = calc_sheet_normal(sheet);
+      opt.mapping.thickness_direction = ao.thickness_direction;
+    }
+    if (opt.method == FibreMethod::template_map) {
+      // The template's box follows the muscle's ends; the pennation sets the rise.
+      areas = find_end_attachments(muscle, a.end_fraction);
+    } else {
+      areas = find_aponeurosis_attachments(muscle, ao);
+      try {
+        if (!a.aponeurosis.empty()) set_interior_aponeurosis(muscle, sheet, areas);
+      } catch (const Error& e) {
+        throw e.with_file(a.aponeurosis);
+      }
+      opt.harmonic.pennation_rad = opt.pennation_rad;
+    }
+  } else if (!a.origin.empty() || !a.insertion.empty()) {
     if (a.origin.empty() || a.insertion.empty())
       throw_usage("--origin and --insertion must be given together");
     areas = find_landmark_attachments(muscle, read_landmarks_csv(a.origin, m_per_unit),
@@ -87,6 +130,11 @@ void run_fibres(const FibresArgs& a) {
     j["method"] = to_string(d.method_used);
     j["template"] = to_string(opt.fibre_template);
     j["warnings"] = d.warnings;
+    if (aponeurosis_areas) {
+      j["attachments"] = "aponeurosis";
+      j["architecture"] = to_string(architecture);
+    }
+    if (a.pennation_deg > 0.0) j["target_pennation_deg"] = a.pennation_deg;
     write_file_atomically(a.report, [&](std::ostream& out) { out << j.dump(2) << '\n'; });
   }
   if (!a.csv.empty()) write_fibre_csv(a.csv, analysis);
@@ -116,6 +164,17 @@ void add_fibres_commands(CLI::App& app, Invocation& run) {
   cmd->add_option("--method", args->method, "template or harmonic");
   cmd->add_option("--count", args->count, "Number of fibres")->check(CLI::Range(1, 1000000));
   cmd->add_option("--resolution", args->resolution, "Points per fibre")->check(CLI::Range(2, 100000));
+  cmd->add_option("--attachments", args->attachments,
+                  "aponeurosis: origin and insertion aponeuroses derived from the architecture "
+                  "and pennation (docs/fibres.md)");
+  cmd->add_option("--architecture", args->architecture,
+                  "unipennate or bipennate (with --attachments aponeurosis)");
+  cmd->add_option("--pennation-deg", args->pennation_deg,
+                  "Target pennation angle in degrees: sets the pennate templates' rise, and the "
+                  "pennate harmonic field with --attachments aponeurosis")
+      ->check(CLI::Range(0.0, 89.0));
+  cmd->add_option("--aponeurosis", args->aponeurosis,
+                  "Interior insertion aponeurosis mesh (with --attachments aponeurosis)");
   cmd->add_option("--out", args->out, "Output fibres (.vtp)")->required();
   cmd->add_option("--report", args->report, "Analysis report (JSON)");
   cmd->add_option("--csv", args->csv, "Per-fibre analysis (CSV)");

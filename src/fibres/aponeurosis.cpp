@@ -157,6 +157,13 @@ Attachments find_aponeurosis_attachments(const TriMesh& muscle, const Aponeurosi
   return a;
 }
 
+Vec3 calc_sheet_normal(const TriMesh& sheet) {
+  if (sheet.num_vertices() < 3) throw_bad_input("the aponeurosis mesh has fewer than 3 vertices");
+  const Points3 D = sheet.V.rowwise() - sheet.V.colwise().mean();
+  const Eigen::SelfAdjointEigenSolver<Mat3> eig(D.transpose() * D);
+  return eig.eigenvectors().col(0);
+}
+
 void set_interior_aponeurosis(const TriMesh& muscle, const TriMesh& aponeurosis,
                               Attachments& areas) {
   const MeshQuery query(muscle);

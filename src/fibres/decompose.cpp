@@ -55,7 +55,8 @@ Decomposition decompose_muscle(const TriMesh& muscle, const Attachments& areas,
                                     .resolution = options.resolution,
                                     .stop_potential = areas.insertion_interior.rows() > 0
                                                           ? 0.99
-                                                          : 1.0 - 1e-9});
+                                                          : 1.0 - 1e-9,
+                                    .end_on_boundary = options.harmonic.pennation_rad > 0.0});
   d.method_used = FibreMethod::harmonic;
   return d;
 }

@@ -223,6 +223,7 @@ struct Tracer {
   double h;
   int max_steps;
   double u_stop;  // a fibre ends where the potential reaches this value
+  bool end_on_boundary;  // a fibre ends where it first leaves the mesh (else it slides on)
 
   Vec3 velocity(const Location& loc) const {
     Vec3 g = Vec3::Zero();
@@ -299,7 +300,12 @@ struct Tracer {
       // elsewhere (a zero-flux side, left by interpolation error) it slides along the boundary.
       auto [exit, lexit] = find_exit(p, loc, next);
       if ((exit - p).norm() > 1e-3 * h) pts.push_back(exit);
-      if (potential(lexit) >= std::min(u_stop, 0.999) || ++slides > max_steps / 2) break;
+      // A pennate fibre that reaches the surface past the middle of the potential has crossed
+      // to the insertion side and ends there.
+      const double u_exit = potential(lexit);
+      if ((end_on_boundary && u_exit >= 0.5) || u_exit >= std::min(u_stop, 0.999) ||
+          ++slides > max_steps / 2)
+        break;
       const Location out = locate(f.tets, lexit.tet, next);
       int face = 0;
       for (int k = 1; k < 4; ++k)
@@ -363,7 +369,7 @@ FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea&
   const double diag = (m.V.colwise().maxCoeff() - m.V.colwise().minCoeff()).norm();
   const Tracer tracer{field, options.step_scale * edge,
                       static_cast<int>(4.0 * diag / (options.step_scale * edge)) + 10,
-                      options.stop_potential};
+                      options.stop_potential, options.end_on_boundary};
   FibreSet set;
   set.fibres.resize(options.count);
   std::vector<char> ok(options.count, 0);

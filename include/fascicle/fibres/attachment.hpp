@@ -107,6 +107,10 @@ Attachments find_aponeurosis_attachments(const TriMesh& muscle,
 void set_interior_aponeurosis(const TriMesh& muscle, const TriMesh& aponeurosis,
                               Attachments& areas);
 
+// The mean normal of a sheet-like mesh (unit; the direction of least variance of its vertices),
+// e.g. an aponeurosis' thickness direction.
+Vec3 calc_sheet_normal(const TriMesh& sheet);
+
 // `count` points spread over the area's triangles: an area-weighted R2 low-discrepancy sequence
 // (point i picks a triangle by its first coordinate, then a point in it by uniform mapping).
 Points3 calc_area_samples(const TriMesh& muscle, const AttachmentArea& area, int count);

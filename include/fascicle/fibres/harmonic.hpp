@@ -59,6 +59,10 @@ struct TraceOptions {
   // A fibre ends where u reaches this value (1 - 1e-9: on the insertion area; with an interior
   // aponeurosis, streamlines approach its vertex layer and a value such as 0.99 ends them there).
   double stop_potential = 1.0 - 1e-9;
+  // true: a fibre ends where it first reaches the surface with u >= 1/2 (pennate fields: it has
+  // crossed to the insertion side); false: away from the insertion area it slides along the
+  // surface.
+  bool end_on_boundary = false;
 };
 
 // Traces `count` fibres: seeds spread over the origin area's triangles (area-weighted R2

@@ -1,0 +1,159 @@
+// Aponeurosis attachment areas, the pennation-derived template rise and the pennate harmonic
+// field, on an analytic flattened cylinder.
+#include "fascicle/core/error.hpp"
+#include "fascicle/fibres/attachment.hpp"
+#include "fascicle/fibres/decompose.hpp"
+#include "fascicle/fibres/harmonic.hpp"
+#include "fascicle/geometry/primitives.hpp"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+using namespace fascicle;
+
+namespace {
+
+// An elliptic cylinder along z (length 0.12 m), 0.016 m thick along x and 0.04 m wide along y.
+TriMesh make_slab() {
+  TriMesh m = make_cylinder(0.02, 0.12, 48, 30);
+  m.V.col(0) *= 0.4;
+  return m;
+}
+
+double median(std::vector<double> v) {
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+
+}  // namespace
+
+TEST(Aponeurosis, UnipennateAreasAreOffsetStripsOnOppositeFaces) {
+  const TriMesh m = make_slab();
+  AponeurosisOptions o;
+  o.pennation_rad = 30.0 * M_PI / 180;
+  o.thickness_direction = Vec3::UnitX();
+  const Attachments a = find_aponeurosis_attachments(m, o);
+  // Origin (proximal, +z end) on the -x face, insertion on the +x face.
+  EXPECT_LT(a.origin.normal.x(), -0.9);
+  EXPECT_GT(a.insertion.normal.x(), 0.9);
+  // d = T / tan(30 deg) with T the mean x extent (0.016 m): the origin strip ends d before the
+  // distal end, the insertion strip starts d after the proximal end.
+  const double L = 0.12, T = 0.016, d = T / std::tan(o.pennation_rad);
+  double origin_lowest = 1.0, insertion_highest = -1.0;
+  for (int v : a.origin.vertices) origin_lowest = std::min(origin_lowest, m.V(v, 2));
+  for (int v : a.insertion.vertices) insertion_highest = std::max(insertion_highest, m.V(v, 2));
+  const double ring = L / 31;  // spacing of the cylinder's rings
+  EXPECT_NEAR(origin_lowest, L / 2 - (L - d), ring);
+  EXPECT_NEAR(insertion_highest, L / 2 - d, ring);
+  EXPECT_EQ(a.insertion_interior.rows(), 0);
+}
+
+TEST(Aponeurosis, BipennateHasACentralSheetInside) {
+  const TriMesh m = make_slab();
+  AponeurosisOptions o;
+  o.architecture = Architecture::bipennate;
+  o.pennation_rad = 20.0 * M_PI / 180;
+  o.thickness_direction = Vec3::UnitX();
+  const Attachments a = find_aponeurosis_attachments(m, o);
+  ASSERT_GT(a.insertion_interior.rows(), 100);
+  // The sheet lies at mid-thickness (x = 0), inside the ellipse, distal of d = (T/2)/tan(20 deg).
+  const double d = 0.008 / std::tan(o.pennation_rad);
+  for (Eigen::Index i = 0; i < a.insertion_interior.rows(); ++i) {
+    const Vec3 p = a.insertion_interior.row(i);
+    EXPECT_NEAR(p.x(), 0.0, 1e-3);
+    EXPECT_LT(std::pow(p.x() / 0.008, 2) + std::pow(p.y() / 0.02, 2), 1.0);
+    EXPECT_LE(p.z(), 0.06 - d + 1e-9);
+  }
+  // Origin on both faces.
+  int minus = 0, plus = 0;
+  for (int v : a.origin.vertices) (m.V(v, 0) < 0 ? minus : plus)++;
+  EXPECT_GT(minus, 50);
+  EXPECT_GT(plus, 50);
+}
+
+TEST(Aponeurosis, BadOptionsAreRejected) {
+  const TriMesh m = make_slab();
+  AponeurosisOptions o;
+  o.pennation_rad = 0.0;
+  EXPECT_THROW(find_aponeurosis_attachments(m, o), Error);
+  o.pennation_rad = 0.3;
+  o.thickness_direction = Vec3::UnitZ();  // along the muscle
+  EXPECT_THROW(find_aponeurosis_attachments(m, o), Error);
+  EXPECT_THROW(parse_architecture("multipennate"), Error);
+  EXPECT_THROW(calc_pennate_rise(0.0, 0.01, 0.1), Error);
+}
+
+TEST(PennateRise, GivesTheTargetAngle) {
+  // tan(a) = T / (h L).
+  EXPECT_NEAR(calc_pennate_rise(M_PI / 4, 0.02, 0.1), 0.2, 1e-12);
+  EXPECT_NEAR(calc_pennate_rise(std::atan(0.5), 0.01, 0.1), 0.2, 1e-12);
+  EXPECT_DOUBLE_EQ(calc_pennate_rise(0.01, 0.05, 0.1), 1.0);  // clamped
+  // Unit-cube fibres of the pennate template with that rise climb h over x in [0, 1].
+  const FibreSet f = make_template_fibres(FibreTemplate::pennate, 10, 5, 0.2);
+  for (const Points3& P : f.fibres) {
+    EXPECT_NEAR(P(4, 0) - P(0, 0), 1.0, 1e-12);
+    EXPECT_NEAR(P(4, 2) - P(0, 2), 0.2, 1e-12);
+  }
+}
+
+TEST(PennateHarmonicField, FibresRunAtThePennationAngle) {
+  const TriMesh m = make_slab();
+  const double alpha = 30.0 * M_PI / 180;
+  AponeurosisOptions o;
+  o.pennation_rad = alpha;
+  o.thickness_direction = Vec3::UnitX();
+  const Attachments a = find_aponeurosis_attachments(m, o);
+  DecomposeOptions opt;
+  opt.method = FibreMethod::harmonic;
+  opt.count = 60;
+  opt.resolution = 12;
+  opt.harmonic.pennation_rad = alpha;
+  const Decomposition d = decompose_muscle(m, a, opt);
+  ASSERT_GE(d.fibres.size(), 55u);
+  std::vector<double> angles, crossings;
+  for (const Points3& P : d.fibres.fibres) {
+    // Middle segment: in the slab's middle the along-field is z and the across field x, so the
+    // fibre direction is cos(a) z + sin(a) x (a fibre runs distally, -z, towards +x).
+    const Eigen::Index k = P.rows() / 2;
+    const Vec3 t = (P.row(k) - P.row(k - 1)).normalized();
+    angles.push_back(std::acos(std::abs(t.z())));
+    EXPECT_GT(t.x(), 0.0);
+    EXPECT_LT(t.z(), 0.0);
+    crossings.push_back(P(P.rows() - 1, 0) - P(0, 0));
+  }
+  std::printf("median mid-fibre angle %.2f deg (target 30), median x crossing %.2f mm\n",
+              median(angles) * 180 / M_PI, median(crossings) * 1e3);
+  EXPECT_NEAR(median(angles), alpha, 2.0 * M_PI / 180);
+  // Fibres cross from the -x face to the +x face.
+  EXPECT_GT(median(crossings), 0.008);
+}
+
+TEST(PennateHarmonicField, InteriorSheetReceivesTheFibres) {
+  const TriMesh m = make_slab();
+  const double alpha = 20.0 * M_PI / 180;
+  AponeurosisOptions o;
+  o.architecture = Architecture::bipennate;
+  o.pennation_rad = alpha;
+  o.thickness_direction = Vec3::UnitX();
+  const Attachments a = find_aponeurosis_attachments(m, o);
+  DecomposeOptions opt;
+  opt.method = FibreMethod::harmonic;
+  opt.count = 60;
+  opt.resolution = 12;
+  opt.harmonic.pennation_rad = alpha;
+  const Decomposition d = decompose_muscle(m, a, opt);
+  ASSERT_GE(d.fibres.size(), 55u);
+  // Fibres start on a face (|x| near the ellipse) and end near the central sheet x = 0.
+  std::vector<double> end_x, start_x;
+  for (const Points3& P : d.fibres.fibres) {
+    start_x.push_back(std::abs(P(0, 0)));
+    end_x.push_back(std::abs(P(P.rows() - 1, 0)));
+  }
+  std::printf("median |x| start %.2f mm, end %.2f mm\n", median(start_x) * 1e3,
+              median(end_x) * 1e3);
+  EXPECT_LT(median(end_x), 1.5e-3);
+  EXPECT_GT(median(start_x), 4e-3);
+}
