@@ -5,7 +5,6 @@
 #include "fascicle/geometry/winding_number.hpp"
 
 #include <embree3/rtcore.h>
-#include <nanoflann.hpp>
 
 #include <algorithm>
 #include <array>
@@ -140,22 +139,11 @@ std::optional<RayHit> intersect_ray_triangle(const Vec3& origin, const Vec3& dir
 // radius handed to Embree is padded by the float rounding of the query point (closest_with_hint).
 // All distances, hits and barycentrics are computed in double by the kernels above.
 namespace {
-// Every kSeedStride-th welded vertex is in the seed k-d tree (measured: 8 and 32 cost the same,
-// 1 is slower because the full tree is expensive to search from far away).
-constexpr std::size_t kSeedStride = 8;
 // Upper limit on the steps of the greedy vertex descent (it stops much earlier in practice).
 constexpr int kMaxDescentSteps = 256;
-// Points of the seed k-d tree, as nanoflann reads them.
-struct VertexCloud {
-  std::vector<double> xyz;  // 3 per point
-  std::size_t kdtree_get_point_count() const { return xyz.size() / 3; }
-  double kdtree_get_pt(unsigned i, std::size_t d) const { return xyz[3 * std::size_t{i} + d]; }
-  template <class Box>
-  bool kdtree_get_bbox(Box& /*box*/) const { return false; }
-};
-using VertexTree =
-    nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, VertexCloud, double, unsigned>,
-                                        VertexCloud, 3, unsigned>;
+// The start-vertex grid has about this many cells per welded vertex (and at most kMaxGridCells).
+constexpr double kGridCellsPerVertex = 2.0;
+constexpr std::size_t kMaxGridCells = std::size_t{1} << 20;
 }  // namespace
 
 struct MeshQuery::Bvh {
@@ -186,10 +174,23 @@ struct MeshQuery::Bvh {
   std::vector<unsigned> ring_start;      // welded vertex i -> ring_slots[ring_start[i] ...)
   std::vector<unsigned> ring_slots;
   std::vector<unsigned> vertex_of_slot;  // slot -> welded vertex of its first corner
-  // Seeds of queries without a hint: a k-d tree over every kSeedStride-th welded vertex (tree
-  // point i is welded vertex kSeedStride * i; evenly spread because of the slot order).
-  VertexCloud cloud;
-  std::unique_ptr<VertexTree> tree;
+  // Start vertices of queries without a hint: a uniform grid over the (enlarged) bounding box
+  // whose cells hold a welded vertex near the cell centre (an approximate nearest vertex; the
+  // descent corrects it). Points outside the grid use the nearest boundary cell.
+  Vec3 grid_lo = Vec3::Zero();
+  double grid_inv_cell = 0.0;
+  std::array<int, 3> grid_n{1, 1, 1};
+  std::vector<unsigned> grid_vertex;  // x fastest
+  unsigned find_start_vertex(const Vec3& p) const {
+    std::size_t index = 0, stride = 1;
+    for (int k = 0; k < 3; ++k) {
+      const double u = (p[k] - grid_lo[k]) * grid_inv_cell;
+      const int i = u <= 0.0 ? 0 : u >= grid_n[k] - 1 ? grid_n[k] - 1 : static_cast<int>(u);
+      index += stride * static_cast<std::size_t>(i);
+      stride *= static_cast<std::size_t>(grid_n[k]);
+    }
+    return grid_vertex[index];
+  }
 
   Bvh() = default;
   Bvh(const Bvh&) = delete;
@@ -630,7 +631,7 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
   bvh.middle = 0.5 * (lo + hi);
 
   // Welded vertices: used vertices with equal coordinates merged, numbered by first use in slot
-  // order; their adjacency and incident slots; the seed k-d tree.
+  // order; their adjacency and incident slots; the start-vertex grid.
   {
     std::vector<int> rank_of(static_cast<std::size_t>(nv), -1);  // mesh vertex -> first-use rank
     std::vector<int> used;                                        // rank -> mesh vertex
@@ -702,10 +703,66 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
       }
     }
     to_csr(bvh.adjacent_start, bvh.adjacent);
-    for (std::size_t i = 0; i < num_welded; i += kSeedStride) {
-      bvh.cloud.xyz.insert(bvh.cloud.xyz.end(), bvh.vertex_xyz.begin() + 3 * i, bvh.vertex_xyz.begin() + 3 * i + 3);
+
+    // Start-vertex grid: cubic cells over the bounding box enlarged by 10% of its diagonal. Each
+    // cell holding vertices keeps the one nearest its centre; two raster sweeps (forward with the
+    // -x, -y, -z neighbours, backward with +x, +y, +z) then pass to every cell the nearest-to-centre
+    // of its neighbours' vertices (an approximate nearest-vertex map; any vertex is a valid start).
+    const Vec3 margin = Vec3::Constant(0.1 * (hi - lo).norm() + std::ldexp(scale, -30));
+    const Vec3 extent = (hi - lo) + 2.0 * margin;
+    const double cells_wanted = std::min(static_cast<double>(kMaxGridCells),
+                                         std::max(1.0, kGridCellsPerVertex * num_welded));
+    const double cell = std::cbrt(extent.prod() / cells_wanted);
+    bvh.grid_lo = lo - margin;
+    bvh.grid_inv_cell = 1.0 / cell;
+    std::size_t cells = 1;
+    for (int k = 0; k < 3; ++k) {
+      bvh.grid_n[k] = std::clamp(static_cast<int>(std::ceil(extent[k] / cell)), 1, 1 << 10);
+      cells *= static_cast<std::size_t>(bvh.grid_n[k]);
     }
-    bvh.tree = std::make_unique<VertexTree>(3, bvh.cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10));
+    constexpr unsigned kNone = std::numeric_limits<unsigned>::max();
+    bvh.grid_vertex.assign(cells, kNone);
+    const int nx = bvh.grid_n[0], ny = bvh.grid_n[1], nz = bvh.grid_n[2];
+    const auto centre_of = [&](int i, int j, int k) {
+      return Vec3(bvh.grid_lo.x() + (i + 0.5) * cell, bvh.grid_lo.y() + (j + 0.5) * cell,
+                  bvh.grid_lo.z() + (k + 0.5) * cell);
+    };
+    const auto cell_index = [&](int i, int j, int k) {
+      return static_cast<std::size_t>(i) + static_cast<std::size_t>(nx) * (static_cast<std::size_t>(j) + static_cast<std::size_t>(ny) * static_cast<std::size_t>(k));
+    };
+    // Offers vertex v to cell (i, j, k): kept if nearer to its centre than the current one.
+    const auto offer = [&](int i, int j, int k, unsigned v) {
+      if (v == kNone) return;
+      unsigned& current = bvh.grid_vertex[cell_index(i, j, k)];
+      const Vec3 c = centre_of(i, j, k);
+      if (current == kNone || bvh.vertex_distance2(v, c) < bvh.vertex_distance2(current, c)) current = v;
+    };
+    for (unsigned v = 0; v < num_welded; ++v) {
+      const Vec3 x(bvh.vertex_xyz[3 * v], bvh.vertex_xyz[3 * v + 1], bvh.vertex_xyz[3 * v + 2]);
+      int ijk[3];
+      for (int k = 0; k < 3; ++k) {
+        ijk[k] = std::clamp(static_cast<int>((x[k] - bvh.grid_lo[k]) / cell), 0, bvh.grid_n[k] - 1);
+      }
+      offer(ijk[0], ijk[1], ijk[2], v);
+    }
+    for (int k = 0; k < nz; ++k) {
+      for (int j = 0; j < ny; ++j) {
+        for (int i = 0; i < nx; ++i) {
+          if (i > 0) offer(i, j, k, bvh.grid_vertex[cell_index(i - 1, j, k)]);
+          if (j > 0) offer(i, j, k, bvh.grid_vertex[cell_index(i, j - 1, k)]);
+          if (k > 0) offer(i, j, k, bvh.grid_vertex[cell_index(i, j, k - 1)]);
+        }
+      }
+    }
+    for (int k = nz - 1; k >= 0; --k) {
+      for (int j = ny - 1; j >= 0; --j) {
+        for (int i = nx - 1; i >= 0; --i) {
+          if (i + 1 < nx) offer(i, j, k, bvh.grid_vertex[cell_index(i + 1, j, k)]);
+          if (j + 1 < ny) offer(i, j, k, bvh.grid_vertex[cell_index(i, j + 1, k)]);
+          if (k + 1 < nz) offer(i, j, k, bvh.grid_vertex[cell_index(i, j, k + 1)]);
+        }
+      }
+    }
   }
 
   bvh.device = rtcNewDevice(nullptr);
@@ -746,19 +803,16 @@ ClosestPoint MeshQuery::closest_with_hint(const Vec3& p, int hint_triangle,
   q.radius_pad = bvh_->pad + std::ldexp(p.cwiseAbs().maxCoeff(), -20);
   q.margin = 1e-10 * ((p - bvh_->middle).norm() + bvh_->scale);
   // Seeds: exact distances to the triangles around the vertex nearest to p (found by greedy
-  // descent from the hint's vertex, or from the nearest k-d tree sample) bound the answer from
+  // descent from the hint's vertex, or from the start-vertex grid) bound the answer from
   // above, so Embree's traversal starts with a nearly exact sphere and prunes almost every node.
+  unsigned start = bvh_->find_start_vertex(p);
   if (hint_triangle >= 0) {
-    const auto hint_slot = static_cast<unsigned>(bvh_->slot_of[static_cast<std::size_t>(hint_triangle)]);
-    seed_from_vertex(&q, bvh_->vertex_of_slot[hint_slot]);
-  } else {
-    unsigned nearest = 0;
-    double nearest_d2 = 0.0;
-    nanoflann::KNNResultSet<double, unsigned, unsigned> result(1);
-    result.init(&nearest, &nearest_d2);
-    bvh_->tree->findNeighbors(result, p.data(), nanoflann::SearchParams());
-    if (result.size() == 1) seed_from_vertex(&q, static_cast<unsigned>(kSeedStride * nearest));
+    // The previous query's vertex, when nearer than the grid's (coherent batches).
+    const auto hint_slot = static_cast<std::size_t>(bvh_->slot_of[static_cast<std::size_t>(hint_triangle)]);
+    const unsigned hint_vertex = bvh_->vertex_of_slot[hint_slot];
+    if (bvh_->vertex_distance2(hint_vertex, p) < bvh_->vertex_distance2(start, p)) start = hint_vertex;
   }
+  seed_from_vertex(&q, start);
   RTCPointQuery query;
   query.x = static_cast<float>(p.x());
   query.y = static_cast<float>(p.y());
