@@ -16,10 +16,12 @@ namespace fascicle {
 namespace {
 
 // Undirected edges of a triangle mesh and, per triangle corner i, the edge opposite it with its
-// orientation (+1 when stored as (F(t,i+1), F(t,i+2)), -1 when stored reversed).
+// orientation (stored as (F(t,i+1), F(t,i+2)), or reversed). Kept as plain arrays (edge ends, and
+// per corner the edge index and a sign) so the per-point loops below read them contiguously.
 struct EdgeTable {
-  std::vector<std::array<int, 2>> edges;
-  std::vector<std::array<int, 3>> opposite;  // per triangle: edge index * 2 + (reversed ? 1 : 0)
+  std::vector<int> edge_a, edge_b;   // ends of edge e
+  std::vector<int> opposite;         // per triangle t, corner i: [3 t + i] = edge index
+  std::vector<double> sign;          // [3 t + i] = +1 (stored as (F(t,i+1), F(t,i+2))) or -1
 };
 
 EdgeTable make_edge_table(const Triangles& F) {
@@ -32,28 +34,55 @@ EdgeTable make_edge_table(const Triangles& F) {
       half.push_back({std::min(a, b), std::max(a, b), f * 3 + i});
     }
   std::sort(half.begin(), half.end());
-  t.opposite.resize(static_cast<std::size_t>(F.rows()));
+  t.opposite.resize(static_cast<std::size_t>(F.rows()) * 3);
+  t.sign.resize(static_cast<std::size_t>(F.rows()) * 3);
   for (std::size_t k = 0; k < half.size(); ++k) {
-    if (k == 0 || half[k][0] != half[k - 1][0] || half[k][1] != half[k - 1][1])
-      t.edges.push_back({half[k][0], half[k][1]});
+    if (k == 0 || half[k][0] != half[k - 1][0] || half[k][1] != half[k - 1][1]) {
+      t.edge_a.push_back(half[k][0]);
+      t.edge_b.push_back(half[k][1]);
+    }
     const int f = half[k][2] / 3, i = half[k][2] % 3;
     const bool reversed = F(f, (i + 1) % 3) != half[k][0];
-    t.opposite[f][i] = static_cast<int>(t.edges.size() - 1) * 2 + (reversed ? 1 : 0);
+    t.opposite[static_cast<std::size_t>(half[k][2])] = static_cast<int>(t.edge_a.size() - 1);
+    t.sign[static_cast<std::size_t>(half[k][2])] = reversed ? -1.0 : 1.0;
   }
   return t;
+}
+
+// Per-point work arrays of calc_mean_value_coordinates (one set per call; no shared state).
+struct MvcScratch {
+  std::vector<double> d, ux, uy, uz;           // per vertex: distance and unit direction from x
+  std::vector<double> theta, nx, ny, nz;       // per edge: arc and unit plane normal
+};
+
+// 2 asin(l / 2) for a chord 0 <= l <= 2 between unit vectors. Short chords (every edge of a
+// triangle far from x) use the Maclaurin series of asin through y^15 (y = l/2 < 1/8: the first
+// omitted term is below 5e-17 y, i.e. round-off), which the compiler can vectorise; longer ones
+// call std::asin.
+inline double calc_chord_angle(double l) {
+  const double y = 0.5 * std::min(l, 2.0);
+  if (y < 0.125) {
+    const double y2 = y * y;
+    // asin(y) = sum_k (2k)! / (4^k (k!)^2 (2k+1)) y^(2k+1)
+    const double p = 1.0 + y2 * (1.0 / 6.0 + y2 * (3.0 / 40.0 + y2 * (15.0 / 336.0 + y2 * (105.0 / 3456.0 +
+                     y2 * (945.0 / 42240.0 + y2 * (10395.0 / 599040.0 + y2 * (135135.0 / 9676800.0)))))));
+    return 2.0 * y * p;
+  }
+  return 2.0 * std::asin(y);
 }
 
 // The contribution of triangle f to the (unnormalised) mean-value weights w of the point x, with
 // d_j = |v_j - x| and u_j = (v_j - x) / d_j: the robust per-triangle formula of Ju, Schaefer and
 // Warren (2005, section 3.3). Returns true when x lies on the triangle (w then holds its
 // barycentric coordinates, normalised, and nothing else).
-bool add_triangle_weights(const Triangles& F, Eigen::Index f, const VecX& d, const Points3& u, VecX& w) {
+bool add_triangle_weights(const Triangles& F, Eigen::Index f, const MvcScratch& s, VecX& w) {
   const int id[3] = {F(f, 0), F(f, 1), F(f, 2)};
+  const auto u = [&](int j) { return Vec3(s.ux[j], s.uy[j], s.uz[j]); };
   // θ_i = 2 asin(l_i / 2) for the chord l_i between the unit vectors; then exactly
   // sin θ_i = l_i sqrt(1 - l_i²/4) and cos θ_i = 1 - l_i²/2.
-  double theta[3], sin_theta[3], cos_theta[3], c[3], s[3];
+  double theta[3], sin_theta[3], cos_theta[3], c[3], sv[3];
   for (int i = 0; i < 3; ++i) {
-    const double l = std::min((u.row(id[(i + 1) % 3]) - u.row(id[(i + 2) % 3])).norm(), 2.0);
+    const double l = std::min((u(id[(i + 1) % 3]) - u(id[(i + 2) % 3])).norm(), 2.0);
     theta[i] = 2.0 * std::asin(0.5 * l);
     sin_theta[i] = l * std::sqrt(std::max(0.0, 1.0 - 0.25 * l * l));
     cos_theta[i] = 1.0 - 0.5 * l * l;
@@ -62,23 +91,23 @@ bool add_triangle_weights(const Triangles& F, Eigen::Index f, const VecX& d, con
   if (M_PI - h < 1e-10) {
     // x lies on this triangle: barycentric coordinates from the angles
     w.setZero();
-    for (int i = 0; i < 3; ++i) w[id[i]] = sin_theta[i] * d[id[(i + 2) % 3]] * d[id[(i + 1) % 3]];
+    for (int i = 0; i < 3; ++i) w[id[i]] = sin_theta[i] * s.d[id[(i + 2) % 3]] * s.d[id[(i + 1) % 3]];
     w /= w.sum();
     return true;
   }
   const double sin_h = std::sin(h), cos_h = std::cos(h);
   Mat3 U;
-  U << u.row(id[0]), u.row(id[1]), u.row(id[2]);
+  U << u(id[0]).transpose(), u(id[1]).transpose(), u(id[2]).transpose();
   const double sign = U.determinant() < 0.0 ? -1.0 : 1.0;
   for (int i = 0; i < 3; ++i) {
     const double sin_h_minus = sin_h * cos_theta[i] - cos_h * sin_theta[i];  // sin(h - θ_i)
     c[i] = 2.0 * sin_h * sin_h_minus / (sin_theta[(i + 1) % 3] * sin_theta[(i + 2) % 3]) - 1.0;
-    s[i] = sign * std::sqrt(std::max(0.0, 1.0 - c[i] * c[i]));
-    if (std::abs(s[i]) <= 1e-10) return false;  // x in the triangle's plane, outside it: no contribution
+    sv[i] = sign * std::sqrt(std::max(0.0, 1.0 - c[i] * c[i]));
+    if (std::abs(sv[i]) <= 1e-10) return false;  // x in the triangle's plane, outside it: no contribution
   }
   for (int i = 0; i < 3; ++i) {
     const int a = (i + 1) % 3, b = (i + 2) % 3;
-    w[id[i]] += (theta[i] - c[a] * theta[b] - c[b] * theta[a]) / (d[id[i]] * sin_theta[a] * s[b]);
+    w[id[i]] += (theta[i] - c[a] * theta[b] - c[b] * theta[a]) / (s.d[id[i]] * sin_theta[a] * sv[b]);
   }
   return false;
 }
@@ -91,50 +120,85 @@ bool add_triangle_weights(const Triangles& F, Eigen::Index f, const VecX& d, con
 // only, so they are computed once per edge: half the asin of the per-triangle formula and no
 // sin/cos. Triangles seen nearly edge-on (|n_i . u_i| <= 1e-6) or nearly containing x use the
 // per-triangle formula (add_triangle_weights), which handles the in-plane and on-triangle cases.
-VecX calc_mean_value_coordinates(const TriMesh& mesh, const EdgeTable& table, const Vec3& x) {
+// The vertex and edge passes run over plain arrays (structure of arrays) so they vectorise.
+VecX calc_mean_value_coordinates(const TriMesh& mesh, const EdgeTable& table, const Vec3& x, MvcScratch& s) {
   const Eigen::Index n = mesh.V.rows();
   const double scale = (mesh.V.colwise().maxCoeff() - mesh.V.colwise().minCoeff()).norm();
   const double eps = 1e-12 * scale;
   VecX w = VecX::Zero(n);
-  VecX d(n);
-  Points3 u(n, 3);
-  for (Eigen::Index j = 0; j < n; ++j) {
-    const Vec3 v = mesh.V.row(j).transpose() - x;
-    d[j] = v.norm();
+  const auto nu = static_cast<std::size_t>(n);
+  s.d.resize(nu);
+  s.ux.resize(nu);
+  s.uy.resize(nu);
+  s.uz.resize(nu);
+  const double* vx = mesh.V.col(0).data();
+  const double* vy = mesh.V.col(1).data();
+  const double* vz = mesh.V.col(2).data();
+  double* d = s.d.data();
+  double* ux = s.ux.data();
+  double* uy = s.uy.data();
+  double* uz = s.uz.data();
+  for (std::size_t j = 0; j < nu; ++j) {
+    const double ex = vx[j] - x[0], ey = vy[j] - x[1], ez = vz[j] - x[2];
+    d[j] = std::sqrt(ex * ex + ey * ey + ez * ez);
+    ux[j] = ex;
+    uy[j] = ey;
+    uz[j] = ez;
+  }
+  for (std::size_t j = 0; j < nu; ++j)
     if (d[j] < eps) {  // x is a vertex
-      w[j] = 1.0;
+      w[static_cast<Eigen::Index>(j)] = 1.0;
       return w;
     }
-    u.row(j) = v.transpose() / d[j];
+  for (std::size_t j = 0; j < nu; ++j) {
+    ux[j] /= d[j];
+    uy[j] /= d[j];
+    uz[j] /= d[j];
   }
-  const std::size_t ne = table.edges.size();
-  std::vector<double> theta(ne);
-  std::vector<Vec3> normal(ne);
+  const std::size_t ne = table.edge_a.size();
+  s.theta.resize(ne);
+  s.nx.resize(ne);
+  s.ny.resize(ne);
+  s.nz.resize(ne);
+  const int* ea = table.edge_a.data();
+  const int* eb = table.edge_b.data();
   for (std::size_t e = 0; e < ne; ++e) {
-    const Vec3 ua = u.row(table.edges[e][0]).transpose(), ub = u.row(table.edges[e][1]).transpose();
-    theta[e] = 2.0 * std::asin(0.5 * std::min((ua - ub).norm(), 2.0));
-    const Vec3 c = ua.cross(ub);
-    const double cn = c.norm();
-    normal[e] = cn > 0.0 ? Vec3(c / cn) : Vec3::Zero();
+    const int a = ea[e], b = eb[e];
+    const double ax = ux[a], ay = uy[a], az = uz[a], bx = ux[b], by = uy[b], bz = uz[b];
+    const double lx = ax - bx, ly = ay - by, lz = az - bz;
+    s.theta[e] = calc_chord_angle(std::sqrt(lx * lx + ly * ly + lz * lz));
+    const double cx = ay * bz - az * by, cy = az * bx - ax * bz, cz = ax * by - ay * bx;
+    const double cn = std::sqrt(cx * cx + cy * cy + cz * cz);
+    const double inv = cn > 0.0 ? 1.0 / cn : 0.0;
+    s.nx[e] = cx * inv;
+    s.ny[e] = cy * inv;
+    s.nz[e] = cz * inv;
   }
   for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
-    const std::array<int, 3>& opp = table.opposite[static_cast<std::size_t>(f)];
-    double th[3], nu[3];
-    Vec3 ni[3];
+    const std::size_t base = static_cast<std::size_t>(f) * 3;
+    double th[3], nuv[3], nix[3], niy[3], niz[3];
+    int corner[3];
     bool edge_on = false;
     for (int i = 0; i < 3; ++i) {
-      const auto e = static_cast<std::size_t>(opp[i] >> 1);
-      th[i] = theta[e];
-      ni[i] = (opp[i] & 1) ? Vec3(-normal[e]) : normal[e];
-      nu[i] = ni[i].dot(u.row(mesh.F(f, i)).transpose());
-      if (!(std::abs(nu[i]) > 1e-6)) edge_on = true;
+      const auto e = static_cast<std::size_t>(table.opposite[base + i]);
+      const double sg = table.sign[base + i];
+      corner[i] = mesh.F(f, i);
+      th[i] = s.theta[e];
+      nix[i] = sg * s.nx[e];
+      niy[i] = sg * s.ny[e];
+      niz[i] = sg * s.nz[e];
+      nuv[i] = nix[i] * ux[corner[i]] + niy[i] * uy[corner[i]] + niz[i] * uz[corner[i]];
+      if (!(std::abs(nuv[i]) > 1e-6)) edge_on = true;
     }
     if (edge_on || M_PI - 0.5 * (th[0] + th[1] + th[2]) < 1e-6) {
-      if (add_triangle_weights(mesh.F, f, d, u, w)) return w;  // x on this triangle
+      if (add_triangle_weights(mesh.F, f, s, w)) return w;  // x on this triangle
       continue;
     }
-    const Vec3 m = 0.5 * (th[0] * ni[0] + th[1] * ni[1] + th[2] * ni[2]);
-    for (int i = 0; i < 3; ++i) w[mesh.F(f, i)] += ni[i].dot(m) / (d[mesh.F(f, i)] * nu[i]);
+    const double mx = 0.5 * (th[0] * nix[0] + th[1] * nix[1] + th[2] * nix[2]);
+    const double my = 0.5 * (th[0] * niy[0] + th[1] * niy[1] + th[2] * niy[2]);
+    const double mz = 0.5 * (th[0] * niz[0] + th[1] * niz[1] + th[2] * niz[2]);
+    for (int i = 0; i < 3; ++i)
+      w[corner[i]] += (nix[i] * mx + niy[i] * my + niz[i] * mz) / (d[corner[i]] * nuv[i]);
   }
   const double sum = w.sum();
   if (!(std::abs(sum) > 0.0) || !std::isfinite(sum))
@@ -177,7 +241,8 @@ std::vector<std::pair<int, double>> truncate_affine(const TriMesh& mesh, const V
 }  // namespace
 
 VecX calc_mean_value_coordinates(const TriMesh& mesh, const Vec3& x) {
-  return calc_mean_value_coordinates(mesh, make_edge_table(mesh.F), x);
+  MvcScratch scratch;
+  return calc_mean_value_coordinates(mesh, make_edge_table(mesh.F), x, scratch);
 }
 
 FibreEmbedding embed_fibres(const SurfaceBinding& binding, const std::vector<Points3>& fibres,
@@ -193,9 +258,14 @@ FibreEmbedding embed_fibres(const SurfaceBinding& binding, const std::vector<Poi
   }
   std::vector<std::vector<std::pair<int, double>>> rows(points.size());
   const EdgeTable table = make_edge_table(rest_surface.F);
-  parallel_for(points.size(), [&](std::size_t p) {
-    const VecX w = calc_mean_value_coordinates(rest_surface, table, points[p]);
-    rows[p] = truncate_affine(rest_surface, points[p], w, options.max_weights);
+  // in blocks of points, each with its own work arrays (results do not depend on the blocking)
+  constexpr std::size_t kBlock = 16;
+  parallel_for((points.size() + kBlock - 1) / kBlock, [&](std::size_t block) {
+    MvcScratch scratch;
+    for (std::size_t p = block * kBlock; p < std::min(points.size(), (block + 1) * kBlock); ++p) {
+      const VecX w = calc_mean_value_coordinates(rest_surface, table, points[p], scratch);
+      rows[p] = truncate_affine(rest_surface, points[p], w, options.max_weights);
+    }
   });
   std::vector<Eigen::Triplet<double>> t;
   for (std::size_t p = 0; p < rows.size(); ++p)
