@@ -367,17 +367,18 @@ std::vector<ActiveContact> find_active_contacts(const SolidDynamicsModel& m, con
     const Transform X_b = get_body_pose(X, m.spec.contact_bones[b].body);
     const Transform X_rest_now = X_b.inverse();
     const Vec3 lo = q.get_mesh().V.colwise().minCoeff(), hi = q.get_mesh().V.colwise().maxCoeff();
-    const std::vector<char>& exempt = m.bone_exempt[b];
+    const std::vector<double>& rest_depth = m.bone_rest_depth[b];
     for (std::size_t s = 0; s < x.size(); ++s) {
-      if (exempt[s]) continue;
       const Vec3 p = X_rest_now * x[s];  // in the bone's rest frame
       if ((p.array() < lo.array()).any() || (p.array() > hi.array()).any()) continue;
       if (!q.calc_is_inside(p)) continue;
       const ClosestPoint c = q.calc_closest_point(p);
       const Vec3 d = c.point - p;
-      const double depth = d.norm();
+      const double full = d.norm();
+      // Only the penetration beyond the rest contact is pushed back.
+      const double depth = full - rest_depth[s];
       if (!(depth > 0.0)) continue;
-      out.push_back({static_cast<int>(s), X_b.linear() * (d / depth), depth});
+      out.push_back({static_cast<int>(s), X_b.linear() * (d / full), depth});
     }
   }
   return out;

@@ -228,10 +228,20 @@ SolidDynamicsModel compile_solid_dynamics(const BSplineSolid& rest, const SolidD
   if (!spec.contact_planes.empty() || !spec.contact_bones.empty()) {
     const BoundaryTessellation t =
         make_boundary_tessellation(rest, std::max(1, spec.contact_samples_per_span));
-    for (Eigen::Index v = 0; v < t.material.rows(); ++v) {
-      const Support sp = calc_support(rest, t.material.row(v).transpose());
+    // Boundary samples, then the given material points (their supports too lie in one span).
+    std::vector<Vec3> material;
+    for (Eigen::Index v = 0; v < t.material.rows(); ++v) material.push_back(t.material.row(v).transpose());
+    const Vec3 lo = rest.get_lower(), hi = rest.get_upper();
+    for (const Vec3& U : spec.contact_material_points) {
+      if (!U.allFinite())
+        throw_bad_input("solid dynamics: a contact material point is not finite",
+                        {.object = rest.name, .suggestion = "give material points inside the solid's parameter box"});
+      material.push_back(U.cwiseMax(lo).cwiseMin(hi));
+    }
+    for (const Vec3& U : material) {
+      const Support sp = calc_support(rest, U);
       SolidDynamicsModel::ContactSample cs;
-      cs.material = t.material.row(v).transpose();
+      cs.material = U;
       for (std::size_t a = 0; a < sp.index.size(); ++a) {
         if (sp.N[a] == 0.0) continue;
         cs.index.push_back(sp.index[a]);
@@ -240,15 +250,21 @@ SolidDynamicsModel compile_solid_dynamics(const BSplineSolid& rest, const SolidD
       m.contact_samples.push_back(std::move(cs));
     }
     for (std::size_t b = 0; b < spec.contact_bones.size(); ++b) {
-      std::vector<char> exempt(m.contact_samples.size(), 0);
+      std::vector<double> depth(m.contact_samples.size(), 0.0);
       if (spec.contact_bones[b].exempt_rest_contact) {
-        for (std::size_t s = 0; s < exempt.size(); ++s)
-          exempt[s] = m.bone_queries[b]->calc_is_inside(Vec3(t.mesh.V.row(static_cast<Eigen::Index>(s)).transpose())) ? 1 : 0;
+        for (std::size_t s = 0; s < depth.size(); ++s) {
+          const auto& cs = m.contact_samples[s];
+          Vec3 x = Vec3::Zero();
+          for (std::size_t a = 0; a < cs.index.size(); ++a) x += cs.N[a] * rest.P.row(cs.index[a]).transpose();
+          if (m.bone_queries[b]->calc_is_inside(x))
+            depth[s] = (m.bone_queries[b]->calc_closest_point(x).point - x).norm();
+        }
       }
-      m.bone_exempt.push_back(std::move(exempt));
+      m.bone_rest_depth.push_back(std::move(depth));
     }
-    double k = 0.0;
-    for (const auto& c : spec.contact_planes) k = std::max(k, c.stiffness_N_m);
+    double k = spec.contact_stiffness_N_m;
+    if (k <= 0.0)
+      for (const auto& c : spec.contact_planes) k = std::max(k, c.stiffness_N_m);
     if (k <= 0.0) {
       // Automatic: the whole weight (or 10 N, if larger) carried by a tenth of the samples
       // penetrates 0.1 mm.

@@ -150,7 +150,7 @@ SolidDynamicsSolver::SolidDynamicsSolver(std::shared_ptr<const SolidDynamicsMode
       SolidDynamicsModel material = m;
       material.contact_samples.clear();
       material.bone_queries.clear();
-      material.bone_exempt.clear();
+      material.bone_rest_depth.clear();
       material.spec.contact_planes.clear();
       material.spec.contact_bones.clear();
       ForceEvaluation k0;

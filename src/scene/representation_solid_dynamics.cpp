@@ -153,6 +153,16 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
         bone_bodies_.push_back(BodyIndex{b});
       }
 
+    // Rest-mesh vertices within contact_margin of a contact bone (inside included).
+    const double contact_margin = get_option(m, "contact_margin", 0.005);
+    std::vector<char> near_bone(static_cast<std::size_t>(m.rest_mesh.V.rows()), 0);
+    for (const BodyIndex b : bone_bodies_) {
+      const VecX sd = model.get_body(b).rest_query->calc_signed_distances(m.rest_mesh.V);
+      for (Eigen::Index i = 0; i < sd.size(); ++i)
+        if (sd[i] < contact_margin) near_bone[static_cast<std::size_t>(i)] = 1;
+    }
+    spec.contact_stiffness_N_m = get_option(m, "contact_stiffness", 2000.0);
+
     // The solid: fitted along the origin → insertion axis, then (if that fit fails or comes out
     // inverted somewhere) without the parameter correction, then along the mesh's long axis.
     const Vec3 origin_c = model.X_ground_body_default[m.origin.body.v] * m.origin.p_body_centroid;
@@ -162,6 +172,12 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
       BSplineSolid solid;
       try {
         solid = fit_rest_solid(model, m, attempt);
+        // Contact samples at the material points of the rest-mesh vertices near a contact bone
+        // (the output surface is embedded there), in addition to the boundary samples.
+        locate_rest_surface(m, solid);
+        spec.contact_material_points.clear();
+        for (std::size_t i = 0; i < vertex_material_.size(); ++i)
+          if (near_bone[i]) spec.contact_material_points.push_back(vertex_material_[i]);
         // Which end layer is the origin: the one nearer the origin landmarks' centroid.
         const auto layer_centroid = [&](int side) {
           Vec3 c = Vec3::Zero();
@@ -333,17 +349,24 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
   // closest solid point (vertices slightly outside the fitted solid). The offset is carried to
   // first order by the solid's local map: x_i = x(U_i) + J(U_i) J_rest(U_i)⁻¹ o_i (exact for rigid
   // and affine motions).
+  // Closest material point of each rest-mesh vertex in `solid` (vertex_material_).
+  void locate_rest_surface(const Muscle& m, const BSplineSolid& solid) {
+    const Points3& X = m.rest_mesh.V;
+    const SolidLocator locator(solid);
+    vertex_material_.assign(static_cast<std::size_t>(X.rows()), Vec3::Zero());
+    parallel_for(vertex_material_.size(), [&](std::size_t i) {
+      vertex_material_[i] = locator.locate(X.row(static_cast<Eigen::Index>(i)).transpose()).material;
+    });
+  }
+
   void embed_rest_surface(const Muscle& m) {
     const Points3& X = m.rest_mesh.V;
     const BSplineSolid& solid = model_->rest;
-    const SolidLocator locator(solid);
-    std::vector<PointLocation> loc(static_cast<std::size_t>(X.rows()));
-    parallel_for(loc.size(), [&](std::size_t i) { loc[i] = locator.locate(X.row(static_cast<Eigen::Index>(i)).transpose()); });
     const int n = solid.num_control_points();
     const auto rows = X.rows();
     std::array<std::vector<Eigen::Triplet<double>>, 4> t;
     for (Eigen::Index i = 0; i < rows; ++i) {
-      const Vec3 U = loc[static_cast<std::size_t>(i)].material;
+      const Vec3 U = vertex_material_[static_cast<std::size_t>(i)];
       append_basis_row(solid, U, {0, 0, 0}, static_cast<int>(i), t[0]);
       append_basis_row(solid, U, {1, 0, 0}, static_cast<int>(i), t[1]);
       append_basis_row(solid, U, {0, 1, 0}, static_cast<int>(i), t[2]);
@@ -460,6 +483,7 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
   std::shared_ptr<const SolidDynamicsModel> model_;
   std::array<EndDriver, 2> ends_;
   std::vector<BodyIndex> bone_bodies_;           // bone k drives X_now_rest[kFirstBoneDriver + k]
+  std::vector<Vec3> vertex_material_;            // material point of each rest-mesh vertex
   std::vector<VecX> rest_depth_;                 // per bone: rest depth of each surface vertex
   std::array<SparseRowMatrix, 4> surface_w_;     // basis and its u, v, w derivatives at the vertices
   Points3 offset_material_, offset_fixed_;

@@ -63,8 +63,9 @@ struct BoneContactSpec {
   std::string name;
   int body = -1;  // moves with X_now_rest[body]; −1: fixed
   TriMesh mesh_rest;
-  // true: boundary samples already inside this mesh in the rest configuration are never pushed
-  // (a muscle bound in a pose where it touches or overlaps the bone, e.g. at an attachment).
+  // true: samples already inside this mesh in the rest configuration are pushed only beyond their
+  // rest depth (a muscle bound in a pose where it touches or overlaps the bone, e.g. at an
+  // attachment): the contact acts on the penetration beyond the rest contact.
   bool exempt_rest_contact = false;
 };
 
@@ -109,6 +110,10 @@ struct SolidDynamicsSpec {
   std::vector<ContactPlaneSpec> contact_planes;
   std::vector<BoneContactSpec> contact_bones;
   int contact_samples_per_span = 2;  // boundary sample density for plane contact
+  // Further contact samples at these material points (u, v, w), e.g. the vertices of a surface
+  // embedded in the solid, so that the contact acts where that surface is.
+  std::vector<Vec3> contact_material_points;
+  double contact_stiffness_N_m = 0.0;  // per sample; 0: the planes' stiffness, else automatic
 };
 
 // One quadrature point of the rest solid.
@@ -150,7 +155,8 @@ struct SolidDynamicsModel {
   std::vector<ContactSample> contact_samples;
   double contact_stiffness_N_m = 0.0;  // per sample, resolved from the spec
   std::vector<std::shared_ptr<const MeshQuery>> bone_queries;  // per contact bone (rest frame)
-  std::vector<std::vector<char>> bone_exempt;  // per contact bone: per sample, inside at rest (exempt)
+  std::vector<std::vector<double>> bone_rest_depth;  // per contact bone: per sample, depth inside at
+                                                    // rest (m; 0 unless exempt_rest_contact)
   // Lower-triangle block pairs (I >= J) of each quadrature point: local support indices and the
   // block's position in block_row; pairs of quadrature point q start at pair_first[q].
   struct BlockPair {
