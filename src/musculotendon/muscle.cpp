@@ -230,10 +230,13 @@ namespace {
 struct Geometry {
   double lM, cos_phi, sin_phi, lT;
 };
+// Fixed-width pennation: the fibre's projection on the tendon is w = lM cos α = √(lM² − h²).
+// (w from lM directly: the tendon length does not wait for the division 1/lM.)
 Geometry fiber_geometry(const Musculotendon& m, double lM, double lMT) {
-  const double s = m.parallelogram_height_m / lM;
-  const double c = std::sqrt(std::max(0.0, 1.0 - s * s));
-  return {lM, c, s, lMT - lM * c};
+  const double h = m.parallelogram_height_m;
+  const double w = std::sqrt(std::max(0.0, lM * lM - h * h));
+  const double inv_lM = 1.0 / lM;
+  return {lM, w * inv_lM, h * inv_lM, lMT - w};
 }
 
 // Curve values already computed at the state's fibre and tendon lengths (reused, not recomputed).
@@ -436,13 +439,14 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
   // `tendon` false: the slack-end evaluation, where f_T and its derivatives are taken as zero.
   const double inv_l0 = 1.0 / l0, inv_lTs = 1.0 / lTs;
   const auto evaluate = [&](Eval& e, double lM, double vN, double fv, bool tendon) {
+    // as fiber_geometry, with 1/cos α = lM/w
+    const double w = std::sqrt(std::max(0.0, lM * lM - h * h));
     const double inv_lM = 1.0 / lM;
-    const double s = h * inv_lM;
-    const double c = std::sqrt(std::max(0.0, 1.0 - s * s));
-    e.g = {lM, c, s, lMT - lM * c};
+    const double s = h * inv_lM, c = w * inv_lM;
+    e.g = {lM, c, s, lMT - w};
     e.jets = calc_length_jets(m, lM * inv_l0, e.g.lT * inv_lTs, tendon);
     const LengthJets& j = e.jets;
-    const double inv_c = 1.0 / c;
+    const double inv_c = lM / w;
     const double fm = a * j.fal.value * fv + j.fpe.value + beta * vN;
     const double dfm = (a * fv * j.fal.derivative + j.fpe.derivative) * inv_l0;
     const double d2fm = (a * fv * j.fal.second_derivative + j.fpe.second_derivative) * inv_l0 * inv_l0;
