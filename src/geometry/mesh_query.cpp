@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstdint>
 #include <string>
+#include <tuple>
 
 namespace fascicle {
 
@@ -142,7 +143,7 @@ namespace {
 // Upper limit on the steps of the greedy vertex descent (it stops much earlier in practice).
 constexpr int kMaxDescentSteps = 256;
 // The start-vertex grid has about this many cells per welded vertex (and at most kMaxGridCells).
-constexpr double kGridCellsPerVertex = 2.0;
+constexpr double kGridCellsPerVertex = 1.0;
 constexpr std::size_t kMaxGridCells = std::size_t{1} << 20;
 }  // namespace
 
@@ -644,21 +645,24 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
         }
       }
     }
-    std::vector<unsigned> by_position(used.size());
-    for (std::size_t i = 0; i < used.size(); ++i) by_position[i] = static_cast<unsigned>(i);
-    const auto position_less = [&](unsigned i, unsigned j) {
-      for (int k = 0; k < 3; ++k) {
-        const double a = mesh_.V(used[i], k), b = mesh_.V(used[j], k);
-        if (a != b) return a < b;
-      }
-      return i < j;
+    struct Keyed {
+      double x, y, z;
+      unsigned rank;
     };
-    std::sort(by_position.begin(), by_position.end(), position_less);
+    std::vector<Keyed> by_position(used.size());
+    for (std::size_t i = 0; i < used.size(); ++i) {
+      by_position[i] = {mesh_.V(used[i], 0), mesh_.V(used[i], 1), mesh_.V(used[i], 2), static_cast<unsigned>(i)};
+    }
+    std::sort(by_position.begin(), by_position.end(), [](const Keyed& a, const Keyed& b) {
+      return std::tie(a.x, a.y, a.z, a.rank) < std::tie(b.x, b.y, b.z, b.rank);
+    });
     // Each rank's representative: the lowest rank with the same position (first in its run).
     std::vector<unsigned> representative(used.size());
     for (std::size_t i = 0; i < by_position.size(); ++i) {
-      const bool same = i > 0 && mesh_.V.row(used[by_position[i]]) == mesh_.V.row(used[by_position[i - 1]]);
-      representative[by_position[i]] = same ? representative[by_position[i - 1]] : by_position[i];
+      const Keyed& a = by_position[i];
+      const bool same = i > 0 && a.x == by_position[i - 1].x && a.y == by_position[i - 1].y &&
+                        a.z == by_position[i - 1].z;
+      representative[a.rank] = same ? representative[by_position[i - 1].rank] : a.rank;
     }
     std::vector<unsigned> weld_of_rank(used.size());
     unsigned num_welded = 0;
@@ -668,41 +672,58 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
         for (int k = 0; k < 3; ++k) bvh.vertex_xyz.push_back(mesh_.V(used[i], k));
       }
     }
-    const auto weld = [&](unsigned slot, int k) {
-      return weld_of_rank[static_cast<std::size_t>(rank_of[static_cast<std::size_t>(mesh_.F(bvh.triangle_of[slot], k))])];
-    };
-    // Incident slots (a triangle repeating a welded vertex is listed once).
-    std::vector<std::pair<unsigned, unsigned>> pairs;  // (welded vertex, slot or neighbour)
-    pairs.reserve(3 * static_cast<std::size_t>(nf));
+    std::vector<std::array<unsigned, 3>> welded(bvh.num_slots);  // slot -> its welded corners
     bvh.vertex_of_slot.resize(bvh.num_slots);
     for (unsigned slot = 0; slot < bvh.num_slots; ++slot) {
-      const unsigned w[3] = {weld(slot, 0), weld(slot, 1), weld(slot, 2)};
-      bvh.vertex_of_slot[slot] = w[0];
       for (int k = 0; k < 3; ++k) {
-        if ((k < 1 || w[k] != w[0]) && (k < 2 || w[k] != w[1])) pairs.emplace_back(w[k], slot);
+        welded[slot][static_cast<std::size_t>(k)] =
+            weld_of_rank[static_cast<std::size_t>(rank_of[static_cast<std::size_t>(mesh_.F(bvh.triangle_of[slot], k))])];
       }
+      bvh.vertex_of_slot[slot] = welded[slot][0];
     }
-    const auto to_csr = [&](std::vector<unsigned>& start, std::vector<unsigned>& items) {
-      std::sort(pairs.begin(), pairs.end());
-      pairs.erase(std::unique(pairs.begin(), pairs.end()), pairs.end());
-      start.assign(num_welded + 1, 0);
-      for (const auto& [v, x] : pairs) ++start[v + 1];
-      for (unsigned v = 0; v < num_welded; ++v) start[v + 1] += start[v];
-      items.resize(pairs.size());
-      for (std::size_t i = 0; i < pairs.size(); ++i) items[i] = pairs[i].second;
+    // Incident slots, by counting (a triangle repeating a welded vertex is listed once), and
+    // adjacent vertices (each edge both ways; duplicates removed per vertex).
+    bvh.ring_start.assign(num_welded + 1, 0);
+    bvh.adjacent_start.assign(num_welded + 1, 0);
+    const auto is_first = [](const std::array<unsigned, 3>& w, int k) {
+      return (k < 1 || w[static_cast<std::size_t>(k)] != w[0]) && (k < 2 || w[2] != w[1]);
     };
-    to_csr(bvh.ring_start, bvh.ring_slots);
-    pairs.clear();
-    for (unsigned slot = 0; slot < bvh.num_slots; ++slot) {
-      const unsigned w[3] = {weld(slot, 0), weld(slot, 1), weld(slot, 2)};
+    for (const auto& w : welded) {
       for (int k = 0; k < 3; ++k) {
-        const unsigned u = w[k], v = w[(k + 1) % 3];
-        if (u == v) continue;
-        pairs.emplace_back(u, v);
-        pairs.emplace_back(v, u);
+        if (is_first(w, k)) ++bvh.ring_start[w[static_cast<std::size_t>(k)] + 1];
+        bvh.adjacent_start[w[static_cast<std::size_t>(k)] + 1] += 2;
       }
     }
-    to_csr(bvh.adjacent_start, bvh.adjacent);
+    for (unsigned v = 0; v < num_welded; ++v) {
+      bvh.ring_start[v + 1] += bvh.ring_start[v];
+      bvh.adjacent_start[v + 1] += bvh.adjacent_start[v];
+    }
+    bvh.ring_slots.resize(bvh.ring_start.back());
+    bvh.adjacent.resize(bvh.adjacent_start.back());
+    std::vector<unsigned> ring_fill(bvh.ring_start.begin(), bvh.ring_start.end() - 1);
+    std::vector<unsigned> adjacent_fill(bvh.adjacent_start.begin(), bvh.adjacent_start.end() - 1);
+    for (unsigned slot = 0; slot < bvh.num_slots; ++slot) {
+      const auto& w = welded[slot];
+      for (int k = 0; k < 3; ++k) {
+        const unsigned v = w[static_cast<std::size_t>(k)];
+        if (is_first(w, k)) bvh.ring_slots[ring_fill[v]++] = slot;
+        bvh.adjacent[adjacent_fill[v]++] = w[static_cast<std::size_t>((k + 1) % 3)];
+        bvh.adjacent[adjacent_fill[v]++] = w[static_cast<std::size_t>((k + 2) % 3)];
+      }
+    }
+    // Compact the adjacency: sort each vertex's short list, drop duplicates and itself.
+    unsigned out = 0;
+    for (unsigned v = 0; v < num_welded; ++v) {
+      const unsigned begin = bvh.adjacent_start[v], end = bvh.adjacent_start[v + 1];
+      std::sort(bvh.adjacent.begin() + begin, bvh.adjacent.begin() + end);
+      bvh.adjacent_start[v] = out;
+      for (unsigned k = begin; k < end; ++k) {
+        const unsigned u = bvh.adjacent[k];
+        if (u != v && (out == bvh.adjacent_start[v] || bvh.adjacent[out - 1] != u)) bvh.adjacent[out++] = u;
+      }
+    }
+    bvh.adjacent_start[num_welded] = out;
+    bvh.adjacent.resize(out);
 
     // Start-vertex grid: cubic cells over the bounding box enlarged by 10% of its diagonal. Each
     // cell holding vertices keeps the one nearest its centre; two raster sweeps (forward with the
