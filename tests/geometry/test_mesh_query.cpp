@@ -245,6 +245,44 @@ TEST(MeshQuery, UnusedVerticesAndDegenerateTrianglesAgainstBruteForce) {
   EXPECT_GT(on_needle, 100);  // the degenerate triangle really is the answer for many points
 }
 
+TEST(MeshQuery, FarPointsAndTriangleSoupAgainstBruteForce) {
+  // Query points far outside the start-vertex grid (up to 30 mesh sizes away, in every
+  // direction), on a torus stored as a triangle soup (no shared vertex indices: the vertex descent
+  // must weld equal positions) whose vertex order is shuffled.
+  const TriMesh shared = make_torus(0.04, 0.012, 30, 16);
+  TriMesh soup;
+  soup.V.resize(3 * shared.F.rows(), 3);
+  soup.F.resize(shared.F.rows(), 3);
+  std::vector<int> perm(static_cast<std::size_t>(soup.V.rows()));
+  for (std::size_t i = 0; i < perm.size(); ++i) perm[i] = static_cast<int>(i);
+  std::mt19937_64 rng(51);
+  std::shuffle(perm.begin(), perm.end(), rng);
+  for (Eigen::Index f = 0; f < shared.F.rows(); ++f) {
+    for (int k = 0; k < 3; ++k) {
+      const int v = perm[static_cast<std::size_t>(3 * f + k)];
+      soup.V.row(v) = shared.V.row(shared.F(f, k));
+      soup.F(f, k) = v;
+    }
+  }
+  const MeshQuery query(soup);
+  std::normal_distribution<double> g(0.0, 1.0);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  Points3 P(400, 3);
+  for (Eigen::Index i = 0; i < P.rows(); ++i) {
+    const Vec3 d = Vec3(g(rng), g(rng), g(rng)).normalized();
+    P.row(i) = (d * 0.1 * std::pow(30.0, u(rng))).transpose();  // 0.1 ... 3 m from the centre
+  }
+  const std::vector<ClosestPoint> batch = query.calc_closest_points(P);
+  for (Eigen::Index i = 0; i < P.rows(); ++i) {
+    const Vec3 p = P.row(i).transpose();
+    const ClosestPoint bf = brute_closest(soup, p);
+    const ClosestPoint one = query.calc_closest_point(p);
+    ASSERT_NEAR(one.distance, bf.distance, 1e-12 * bf.distance) << "point " << i;
+    ASSERT_EQ(one.triangle, batch[static_cast<std::size_t>(i)].triangle) << "point " << i;
+    ASSERT_EQ(one.distance, batch[static_cast<std::size_t>(i)].distance) << "point " << i;
+  }
+}
+
 TEST(MeshQuery, SphereSignedDistanceIsAnalyticAtVertices) {
   // Points on rays through the vertices: the closest point of the inscribed polyhedron is that
   // vertex when outside, so the distance is |p| - r exactly; inside it is at most r - |p|.
@@ -421,6 +459,28 @@ TEST(MeshQuery, VisibleHumanTibiaAgainstBruteForce) {
       read_binary_stl_mm(test::data_path("visible_human_female/right/VHF_Right_Bone_Tibia_smooth.stl"));
   ASSERT_GT(tibia.F.rows(), 50000);
   check_against_brute_force(tibia, 100, 50, 41);
+  // The contact case: points 0.5-5 mm off the bone along the face normal, both sides; closest
+  // triangle (lowest index on ties) identical to the exhaustive search.
+  const MeshQuery query(tibia);
+  std::mt19937_64 rng(42);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::uniform_int_distribution<Eigen::Index> pick(0, tibia.F.rows() - 1);
+  Points3 P(60, 3);
+  for (Eigen::Index i = 0; i < P.rows(); ++i) {
+    const Eigen::Index f = pick(rng);
+    const Vec3 a = vertex(tibia, f, 0), b = vertex(tibia, f, 1), c = vertex(tibia, f, 2);
+    const double offset = (i % 2 == 0 ? 1.0 : -1.0) * (0.5e-3 + 4.5e-3 * u(rng));
+    P.row(i) = ((a + b + c) / 3.0 + offset * (b - a).cross(c - a).normalized()).transpose();
+  }
+  const std::vector<ClosestPoint> batch = query.calc_closest_points(P);
+  for (Eigen::Index i = 0; i < P.rows(); ++i) {
+    const Vec3 p = P.row(i).transpose();
+    const ClosestPoint bf = brute_closest(tibia, p);
+    const ClosestPoint one = query.calc_closest_point(p);
+    ASSERT_EQ(one.triangle, bf.triangle) << "point " << i;
+    ASSERT_EQ(batch[static_cast<std::size_t>(i)].triangle, bf.triangle) << "point " << i;
+    ASSERT_NEAR(one.distance, bf.distance, 1e-12 * bf.distance) << "point " << i;
+  }
 }
 
 }  // namespace
