@@ -235,6 +235,49 @@ BENCHMARK(BM_ValidateArchitecture)
     ->Iterations(1)
     ->Unit(benchmark::kMillisecond);
 
+// Sensitivity of the DTI deviation to the pennation angle (not a validation: the angle is swept,
+// not fitted). Arguments: case (5 MG, 6 TA), variant (0 template pennate, 1 pennate harmonic
+// field), pennation angle in degrees.
+void BM_DtiPennationSweep(benchmark::State& state) {
+  const ArchitectureCase& c = architecture_cases[state.range(0)];
+  const bool harmonic = state.range(1) == 1;
+  const double alpha = static_cast<double>(state.range(2)) * M_PI / 180;
+  const TriMesh muscle = read_mesh(data / c.mesh, LengthUnit::millimetre);
+  AponeurosisOptions ao;
+  ao.architecture = c.architecture;
+  ao.pennation_rad = alpha;
+  DecomposeOptions opt;
+  opt.method = harmonic ? FibreMethod::harmonic : FibreMethod::template_map;
+  opt.fibre_template = FibreTemplate::pennate;
+  opt.count = 100;
+  opt.resolution = 16;
+  opt.pennation_rad = alpha;
+  TriMesh apo;
+  if (c.aponeurosis) {
+    apo = read_mesh(data / c.aponeurosis, LengthUnit::millimetre);
+    ao.thickness_direction = calc_sheet_normal(apo);
+    opt.mapping.thickness_direction = ao.thickness_direction;
+  }
+  Attachments areas;
+  if (harmonic) {
+    areas = find_aponeurosis_attachments(muscle, ao);
+    if (c.aponeurosis) set_interior_aponeurosis(muscle, apo, areas);
+    opt.harmonic.pennation_rad = alpha;
+  } else {
+    areas = find_end_attachments(muscle);
+  }
+  Decomposition d;
+  for (auto _ : state) d = decompose_muscle(muscle, areas, opt);
+  const DirectionDeviation dev = compare_directions(d.fibres, read_tracts(data / c.tracts, 1e-3));
+  state.counters["dti_mean_deg"] = dev.mean_rad * 180 / M_PI;
+  state.counters["dti_median_deg"] = dev.median_rad * 180 / M_PI;
+  state.SetLabel(std::string(c.name) + (harmonic ? " pennate-field" : " template pennate"));
+}
+BENCHMARK(BM_DtiPennationSweep)
+    ->ArgsProduct({{5, 6}, {0, 1}, {5, 10, 15, 20, 25, 30}})
+    ->Iterations(1)
+    ->Unit(benchmark::kMillisecond);
+
 }  // namespace
 
 BENCHMARK_MAIN();

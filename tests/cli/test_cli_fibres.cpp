@@ -77,3 +77,37 @@ TEST(CliFibres, BadInputsGiveClearErrors) {
   EXPECT_EQ(r.code, 3) << r.out;
   EXPECT_FALSE(std::filesystem::exists(vtp));
 }
+
+TEST(CliFibres, AponeurosisAttachmentsGivePennateFibres) {
+  const auto dir = fascicle::test::scratch_dir("cli_fibres_aponeurosis");
+  const auto vtp = (dir / "ta.vtp").string(), json = (dir / "ta.json").string();
+  const std::string apo = fascicle::test::data_path("bolsterlee_dti/TA_apo.stl").string();
+  FibresCliRun r = run_fibres_cli(
+      "--mesh " + ta_mesh() + " --units mm --attachments aponeurosis --architecture bipennate "
+      "--pennation-deg 9.6 --aponeurosis " + apo + " --method harmonic --count 40 --resolution 9 "
+      "--out " + vtp + " --report " + json);
+  ASSERT_EQ(r.code, 0) << r.out;
+  std::ifstream in(json);
+  const nlohmann::json j = nlohmann::json::parse(in);
+  EXPECT_EQ(j["attachments"].get<std::string>(), "aponeurosis");
+  EXPECT_EQ(j["architecture"].get<std::string>(), "bipennate");
+  // Pennate fibres between the surface and the aponeurosis: Ward et al. 2009 give 68.3 mm for the
+  // TA; end-to-end fibres of this belly are about 27 cm.
+  EXPECT_GT(j["mean_fibre_length_m"].get<double>(), 0.0683 * 0.75);
+  EXPECT_LT(j["mean_fibre_length_m"].get<double>(), 0.0683 * 1.25);
+  // Missing pennation angle, unknown architecture: usage errors.
+  r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --attachments aponeurosis --method "
+                     "harmonic --out " + vtp);
+  EXPECT_EQ(r.code, 2) << r.out;
+  EXPECT_NE(r.out.find("--pennation-deg"), std::string::npos) << r.out;
+  r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --attachments aponeurosis "
+                     "--architecture multipennate --pennation-deg 10 --out " + vtp);
+  EXPECT_EQ(r.code, 2) << r.out;
+  // An aponeurosis of another muscle (outside this one): bad input naming the file.
+  const std::string mg = fascicle::test::data_path("bolsterlee_dti/MG.stl").string();
+  r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --attachments aponeurosis "
+                     "--architecture bipennate --pennation-deg 10 --aponeurosis " + mg +
+                     " --method harmonic --out " + vtp);
+  EXPECT_EQ(r.code, 3) << r.out;
+  EXPECT_NE(r.out.find("MG.stl"), std::string::npos) << r.out;
+}
