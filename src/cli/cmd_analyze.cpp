@@ -21,6 +21,7 @@ struct AnalyzeOptions {
   std::vector<std::string> geometry_dirs;
   bool cylinder_infinite = false;
   std::string cylinder_method = "geodesic";
+  bool opensim_lengths = false;
 };
 
 std::vector<std::string> split_commas(const std::string& text) {
@@ -43,6 +44,7 @@ void run_analyze(const AnalyzeOptions& o) {
   } else if (o.cylinder_method != "geodesic") {
     throw_usage("--cylinder-method must be 'geodesic' or 'opensim', not '" + o.cylinder_method + "'");
   }
+  path_options.opensim_tangent_point_cache = o.opensim_lengths;
   const OsimAnalysisModel model = load_osim_model(o.model, import, path_options);
   const Table motion = read_table(o.motion);
   Table activations;
@@ -90,6 +92,10 @@ void add_analyze_commands(CLI::App& app, Invocation& run) {
   c->add_option("--cylinder-method", o->cylinder_method,
                 "geodesic (exact shortest path, exact moment arms; default) or opensim (OpenSim "
                 "4's iterative cylinder construction, for parity)");
+  c->add_flag("--opensim-lengths", o->opensim_lengths,
+              "Report lengths of multi-wrap paths as OpenSim 4 does (straight pieces between "
+              "first-pass tangent points, docs/analyze.md); for comparison with OpenSim only: "
+              "such a length is not that of one path, and moment arms stay the real path's");
   c->add_option("--out", o->out, "Output folder")->required();
   c->callback([o, &run] { run.action = [o] { run_analyze(*o); }; });
 }

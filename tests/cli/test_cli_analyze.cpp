@@ -2,6 +2,7 @@
 // (a few frames each, to keep CI short), and their bad-input behaviour (exit codes, nothing written).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -107,6 +108,60 @@ TEST(CliAnalyze, RequestedCoordinatesOnly) {
             0);
   EXPECT_EQ(count_files(out), 9);
   EXPECT_TRUE(fs::exists(out / "arm26_MuscleAnalysis_MomentArm_r_elbow_flex.sto"));
+}
+
+// `--opensim-lengths` reports multi-wrap lengths as OpenSim 4 does (docs/analyze.md, med_gas):
+// against OpenSim's own reference table for frames where both of med_gas_r's cylinders wrap, the
+// flag brings the length from millimetres off to micrometres off.
+TEST(CliAnalyze, OpenSimLengthsMatchOpenSimOnTwoWrapFrames) {
+  const fs::path dir = test::scratch_dir("cli_analyze_opensim_lengths");
+  const Table full = read_table(test::data_path("opensim/motions/subject_walk_armless_coordinates.mot"));
+  // Rows around t = 0.25 s, and only the armless model's coordinates (the arm columns come last).
+  const auto arm = std::find(full.labels.begin(), full.labels.end(), "arm_flex_r");
+  ASSERT_NE(arm, full.labels.end());
+  const long columns = arm - full.labels.begin();
+  const long first = 20, rows = 11;
+  ASSERT_GE(full.rows(), first + rows);
+  Table motion = full;
+  motion.labels.resize(static_cast<std::size_t>(columns));
+  motion.time = full.time.segment(first, rows).eval();
+  motion.data = full.data.block(first, 0, rows, columns).eval();
+  motion.header.emplace_back("inDegrees", full.in_degrees ? "yes" : "no");
+  write_sto(dir / "walk.mot", motion);
+
+  const Table reference = read_table(test::data_path(
+      "opensim/tests/std_testGeometryPathWrapping_subject_walk_armless_muscle_lengths.sto"));
+  const auto ref_col = std::find(reference.labels.begin(), reference.labels.end(),
+                                 "/forceset/med_gas_r|length");
+  ASSERT_NE(ref_col, reference.labels.end());
+  const long rc = ref_col - reference.labels.begin();
+
+  // Largest |length − OpenSim| of med_gas_r over the rows, for one run of the CLI.
+  auto max_error = [&](const std::string& flags, const std::string& name) {
+    const fs::path out = dir / name;
+    EXPECT_EQ(run("analyze --model " +
+                  q(test::data_path("opensim/models/subject_walk_armless_18musc.osim")) +
+                  " --motion " + q(dir / "walk.mot") + " --geometry-dir " +
+                  q(test::data_path("opensim/Geometry")) + " --coordinates knee_angle_r " + flags +
+                  " --out " + q(out)),
+              0);
+    const Table length = read_table(out / "subject_scale_walk_MuscleAnalysis_Length.sto");
+    const auto col = std::find(length.labels.begin(), length.labels.end(), "med_gas_r");
+    EXPECT_NE(col, length.labels.end());
+    if (col == length.labels.end()) return 1.0;
+    double worst = 0;
+    for (long i = 0; i < length.rows(); ++i) {
+      long j = 0;
+      while (j < reference.rows() && std::abs(reference.time(j) - length.time(i)) > 1e-9) ++j;
+      EXPECT_LT(j, reference.rows()) << "no reference row at t = " << length.time(i);
+      if (j == reference.rows()) return 1.0;
+      worst = std::max(worst, std::abs(length.data(i, col - length.labels.begin()) -
+                                        reference.data(j, rc)));
+    }
+    return worst;
+  };
+  EXPECT_LT(max_error("--cylinder-method opensim --opensim-lengths", "cached"), 1e-5);
+  EXPECT_GT(max_error("--cylinder-method opensim", "plain"), 1e-3);
 }
 
 TEST(CliAnalyzeBadInput, ExitCodesAndNothingWritten) {
