@@ -243,6 +243,7 @@ Geometry fiber_geometry(const Musculotendon& m, double lM, double lMT) {
 struct KnownCurves {
   double fal, fpe, ft;
   double fv = std::numeric_limits<double>::quiet_NaN();  // NaN: not known
+  const struct LengthJets* jets = nullptr;  // Millard: the solved jets (energies from their u)
 };
 
 // F0 l0 ∫ f_PE at a fibre length where f_PE is known. Thelen: expm1 of the exponent is
@@ -261,25 +262,36 @@ double calc_passive_energy_known(const Musculotendon& m, double lM, double fpe) 
 
 // The three length-dependent curves with their first and second derivatives at normalised fibre
 // length l and normalised tendon length t (one switch, inlined curve kernels); the tendon curve
-// is left zero when `tendon` is false.
+// is left zero when `tendon` is false. Written in place (the solver's Eval holds it).
 struct LengthJets {
   CurveJet fal, fpe, ft;
+  // Millard: where the passive and tendon curves were solved (their energies reuse the solve)
+  SmoothSegmentedCurve::Location fpe_at, ft_at;
 };
-inline LengthJets calc_length_jets(const Musculotendon& m, double l, double t, bool tendon) {
+inline void calc_length_jets(const Musculotendon& m, double l, double t, bool tendon,
+                             LengthJets& j) {
   switch (m.params.model) {
     case MuscleModel::thelen2003:
-      return {detail::thelen_active_jet(m.thelen_constants, l),
-              detail::thelen_passive_jet(m.thelen_constants, l),
-              tendon ? detail::thelen_tendon_jet(m.thelen_constants, t) : CurveJet{}};
+      j.fal = detail::thelen_active_jet(m.thelen_constants, l);
+      j.fpe = detail::thelen_passive_jet(m.thelen_constants, l);
+      j.ft = tendon ? detail::thelen_tendon_jet(m.thelen_constants, t) : CurveJet{};
+      return;
     case MuscleModel::millard2012:
-      return {m.millard.active_force_length.calc_jet(l), m.millard.passive_force_length.calc_jet(l),
-              tendon ? m.millard.tendon_force_length.calc_jet(t) : CurveJet{}};
+      j.fal = m.millard.active_force_length.calc_jet(l);
+      j.fpe = m.millard.passive_force_length.calc_jet(l, j.fpe_at);
+      if (tendon) {
+        j.ft = m.millard.tendon_force_length.calc_jet(t, j.ft_at);
+      } else {
+        j.ft = CurveJet{};
+        j.ft_at = {};
+      }
+      return;
     case MuscleModel::degroote2016:
-      return {detail::degroote_active_jet(m.params.degroote, l),
-              detail::degroote_passive_jet(m.params.degroote, m.degroote_constants, l),
-              tendon ? detail::degroote_tendon_jet(m.degroote_constants, t) : CurveJet{}};
+      j.fal = detail::degroote_active_jet(m.params.degroote, l);
+      j.fpe = detail::degroote_passive_jet(m.params.degroote, m.degroote_constants, l);
+      j.ft = tendon ? detail::degroote_tendon_jet(m.degroote_constants, t) : CurveJet{};
+      return;
   }
-  return {};
 }
 
 // True when a curve is not twice differentiable between the two states (Thelen only: the passive
@@ -331,6 +343,16 @@ void fill_outputs(const Musculotendon& m, double a, const Geometry& g, double vM
   o.norm_tendon_force = o.tendon_force_N / F0;
   o.fiber_active_power_W = -o.active_fiber_force_N * vM;
   if (!energies) return;  // left NaN
+  if (known && known->jets && p.model == MuscleModel::millard2012) {
+    const LengthJets& j = *known->jets;
+    o.fiber_passive_energy_J =
+        m.millard.passive_force_length.calc_integral_near(j.fpe_at, j.fpe, g.lM / l0) * F0 * l0;
+    const double lTs = p.tendon_slack_length_m;
+    o.tendon_energy_J = rigid ? 0.0
+                              : m.millard.tendon_force_length.calc_integral_near(
+                                    j.ft_at, j.ft, g.lT / lTs) * F0 * lTs;
+    return;
+  }
   o.fiber_passive_energy_J =
       known ? calc_passive_energy_known(m, g.lM, known->fpe) : calc_passive_energy_J(m, g.lM);
   o.tendon_energy_J = rigid ? 0.0 : calc_tendon_energy_J(m, g.lT);
@@ -444,7 +466,7 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
     const double inv_lM = 1.0 / lM;
     const double s = h * inv_lM, c = w * inv_lM;
     e.g = {lM, c, s, lMT - w};
-    e.jets = calc_length_jets(m, lM * inv_l0, e.g.lT * inv_lTs, tendon);
+    calc_length_jets(m, lM * inv_l0, e.g.lT * inv_lTs, tendon, e.jets);
     const LengthJets& j = e.jets;
     const double inv_c = lM / w;
     const double fm = a * j.fal.value * fv + j.fpe.value + beta * vN;
@@ -682,7 +704,8 @@ MuscleOutputs calc_static_equilibrium(const Musculotendon& m, double activation,
   double vM = vN_solved * vscale;
   if (at_lower && vM < 0.0) vM = 0.0;
   const double fv_known = (vM == vN_solved * vscale) ? fv_solved : MuscleOutputs::nan;
-  const KnownCurves known{last.jets.fal.value, last.jets.fpe.value, last.jets.ft.value, fv_known};
+  const KnownCurves known{last.jets.fal.value, last.jets.fpe.value, last.jets.ft.value, fv_known,
+                          &last.jets};
   fill_outputs(m, a, last.g, vM, lMT, vMT, false, o, &known, options.energies);
   o.fiber_at_lower_bound = at_lower;
   o.iterations = total_iterations;

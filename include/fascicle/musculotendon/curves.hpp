@@ -84,9 +84,22 @@ class SmoothSegmentedCurve {
   // dydx_left/right: slopes of the linear extrapolations (OpenSim's dydx0 / dydx1).
   SmoothSegmentedCurve(std::vector<Segment> segments, double dydx_left, double dydx_right);
 
+  // Where calc_jet found its x: the segment (−1 / size() on the left / right extrapolation) and
+  // the Bézier parameter, so a caller can take the integral there without a second solve.
+  struct Location {
+    int segment = -1;
+    double u = 0.0, x = 0.0;
+  };
   CurvePoint calc(double x) const;
-  // y, dy/dx and d²y/dx² (zero on the linear extrapolations) in one solve for u.
+  // y, dy/dx and d²y/dx² (zero on the linear extrapolations) in one solve for u; `where`
+  // receives the location.
   CurveJet calc_jet(double x) const;
+  CurveJet calc_jet(double x, Location& where) const;
+  // ∫_{x_begin}^{x} y dx for x next to a location found by calc_jet, given the jet at x (value at
+  // x, derivatives at where.x — as a solver's Taylor step leaves them): the closed form at
+  // where.u plus the third-order Taylor integral over the step (exact to rounding for steps below
+  // 1e-4 of the segment); falls back to calc_integral for longer steps and the extrapolations.
+  double calc_integral_near(const Location& where, const CurveJet& jet, double x) const;
   double calc_value(double x) const { return calc(x).value; }
   // ∫_{x_begin}^{x} y dx (exact: the degree-9 polynomial y(u)·x'(u) integrated in closed form).
   double calc_integral(double x) const;
@@ -119,6 +132,8 @@ class SmoothSegmentedCurve {
     // negated (d/du = −d/dw). The products are the ones poly5_du* form, so results are the same.
     alignas(16) std::array<double, 34> jet0{}, jet1{};
   };
+  template <bool kLocate>
+  CurveJet calc_jet_impl(double x, Location* where) const;
   double solve_u(const Fast& f, double x) const;
   double guess_u(const Fast& f, double x, double& lo, double& hi) const;
   int find_segment(double x) const;  // -1 left of the curve, size() right of it
