@@ -235,11 +235,13 @@ struct WardCase {
   bool architecture_aware;  // pennation-derived rise / aponeurosis areas and pennate field
   Architecture architecture;
   double pennation_deg;  // Ward et al. 2009
+  bool pennate_field = true;  // harmonic: pennate field (else the plain field on the same areas)
 };
 
 std::string describe(const WardCase& w) {
   return cases()[w.muscle].name + " " + to_string(w.method) + " " + to_string(w.fibre_template) +
-         (w.architecture_aware ? " (architecture-aware)" : " (fixed rise)");
+         (w.architecture_aware ? " (architecture-aware)" : " (fixed rise)") +
+         (w.method == FibreMethod::harmonic && !w.pennate_field ? " plain field" : "");
 }
 
 }  // namespace
@@ -273,7 +275,7 @@ TEST_P(WardFibreLength, MeanFibreLengthWithin25Percent) {
       }
       areas = find_aponeurosis_attachments(muscle, ao);
       if (apo.num_vertices() > 0) set_interior_aponeurosis(muscle, apo, areas);
-      opt.harmonic.pennation_rad = opt.pennation_rad;
+      if (w.pennate_field) opt.harmonic.pennation_rad = opt.pennation_rad;
     }
   }
   const Decomposition d = decompose_muscle(muscle, areas, opt);
@@ -316,4 +318,5 @@ INSTANTIATE_TEST_SUITE_P(
         // Aponeurosis areas and the pennate harmonic field.
         WardCase{1, kHarmonic, FibreTemplate::parallel, true, kBi, 9.6},
         WardCase{4, kHarmonic, FibreTemplate::parallel, true, kUni, 20.5},
+        WardCase{4, kHarmonic, FibreTemplate::parallel, true, kUni, 20.5, false},
         WardCase{6, kHarmonic, FibreTemplate::parallel, true, kBi, 9.6}));
