@@ -276,6 +276,7 @@ struct FibresFirstSolver::Workspace {
   Points3 pair_target;           // per particle: mean pair target this iteration
   std::vector<int> pair_count;   // per particle
   Points3 previous, velocity;
+  Points3 correction;  // last frame's converged minus guessed positions (0 on non-free rows)
   std::vector<Transform> previous_motions;
   bool has_previous = false;
   int frames = 0;
@@ -336,6 +337,7 @@ void FibresFirstSolver::reset() {
   ws.pairs.clear();
   ws.pair_keys.clear();
   ws.has_previous = false;
+  ws.correction.resize(0, 3);
   ws.checked_at.assign(model_.num_bones(), model_.rest);
   ws.clearance = model_.rest_bone_clearance;
   x_ = model_.rest;
@@ -379,7 +381,7 @@ int detect_bone_contacts(const FrameContext& c, const Points3& x, std::vector<in
     const Transform X_rest_now = c.motions[b].inverse();
     for (int p = 0; p < model.num_particles(); ++p) {
       // fixed particles follow their bone and cannot be moved: neither contacts nor measured
-      if (model.role[p] == ParticleRole::fixed || model.rest_bone_depth[b][p] > 0.0) continue;
+      if (model.role[p] != ParticleRole::free || model.rest_bone_depth[b][p] > 0.0) continue;
       const Vec3 local = X_rest_now * Vec3(x.row(p).transpose());
       const double moved = (local - checked_at[b].row(p).transpose()).norm();
       if (moved < clearance[b][p]) continue;  // cannot have reached the bone
@@ -542,8 +544,8 @@ void set_pair_targets(const FibresFirstModel& model, FibresFirstSolver::Workspac
     if (dist < pr.allowed_m) {
       const Vec3 rest_d = model.rest.row(pr.p) - model.rest.row(pr.q);
       const Vec3 n = dist > 1e-12 ? Vec3(d / dist) : Vec3(rest_d.normalized());
-      const bool p_fixed = model.role[pr.p] == ParticleRole::fixed;
-      const bool q_fixed = model.role[pr.q] == ParticleRole::fixed;
+      const bool p_fixed = model.role[pr.p] != ParticleRole::free;
+      const bool q_fixed = model.role[pr.q] != ParticleRole::free;
       const double share_p = p_fixed ? 0.0 : (q_fixed ? 1.0 : 0.5);
       tp += share_p * (pr.allowed_m - dist) * n;
       tq -= (1.0 - share_p) * (pr.allowed_m - dist) * n;
@@ -691,8 +693,8 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
         if (dist >= pr.allowed_m) continue;
         const Vec3 n = dist > 1e-12 ? Vec3(d / dist)
                                     : Vec3((model.rest.row(pr.p) - model.rest.row(pr.q)).normalized());
-        const bool p_fixed = model.role[pr.p] == ParticleRole::fixed || held[pr.p] == 1;
-        const bool q_fixed = model.role[pr.q] == ParticleRole::fixed || held[pr.q] == 1;
+        const bool p_fixed = model.role[pr.p] != ParticleRole::free || held[pr.p] == 1;
+        const bool q_fixed = model.role[pr.q] != ParticleRole::free || held[pr.q] == 1;
         if (p_fixed && q_fixed) continue;
         const double share_p = p_fixed ? 0.0 : (q_fixed ? 1.0 : 0.5);
         x.row(pr.p) += (share_p * (pr.allowed_m - dist) * n).transpose();
@@ -752,6 +754,15 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
   for (int b = 0; b < model.num_bones(); ++b)
     if (!motions[b].matrix().allFinite())
       throw_bad_input(fmt::format("frame {}: the motion of bone {} is not finite", frame, b));
+  const int nm_in = static_cast<int>(model.muscles.size());
+  if (!input.action_lines.empty() && static_cast<int>(input.action_lines.size()) != nm_in)
+    throw_bad_input(fmt::format("frame {}: {} action lines given for {} muscles", frame,
+                                input.action_lines.size(), nm_in));
+  for (std::size_t mi = 0; mi < input.action_lines.size(); ++mi)
+    if (input.action_lines[mi].rows() < 2 || !input.action_lines[mi].allFinite())
+      throw_bad_input(fmt::format("frame {}: the action line of muscle '{}' has fewer than 2 points "
+                                  "or a non-finite one", frame, model.muscles[mi].name),
+                      frame_context(model.muscles[mi].name));
   const double h = o.dynamic ? (input.time_step_s > 0.0 ? input.time_step_s : o.default_time_step_s)
                              : 0.0;
   if (o.dynamic && !std::isfinite(h))
@@ -768,9 +779,35 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
     const FibreBundle& m = model.muscles[mi];
     const int ob = m.origin_bone >= 0 ? m.origin_bone : m.insertion_bone;
     const int ib = m.insertion_bone >= 0 ? m.insertion_bone : m.origin_bone;
+    // the current action line (carried particles): given, or the rest line moved by the blend
+    Points3 line;
+    if (m.rest_action_line.rows() >= 2) {
+      if (!input.action_lines.empty()) {
+        line = input.action_lines[mi];
+      } else {
+        line = m.rest_action_line;
+        for (Eigen::Index k = 0; k < line.rows(); ++k) {
+          const double t = detail::calc_line_fraction(m.rest_action_line, line.row(k).transpose());
+          const double w = o.blend_a * t * t - (o.blend_a + 1.0) * t + 1.0;
+          const Vec3 r = m.rest_action_line.row(k).transpose();
+          line.row(k) = (w * (motions[ob] * r) + (1.0 - w) * (motions[ib] * r)).transpose();
+        }
+      }
+    }
     for (int p = m.first_particle; p < m.first_particle + m.num_particles; ++p) {
       if (model.role[p] == ParticleRole::fixed) {
         x.row(p) = (motions[model.fixed_bone[p]] * Vec3(model.rest.row(p).transpose())).transpose();
+        continue;
+      }
+      if (model.role[p] == ParticleRole::carried) {
+        // the rest offset from the line, turned by the minimal rotation of the line's tangent
+        Vec3 c0, t0, c, t;
+        detail::calc_line_point(m.rest_action_line, model.line_fraction[p], c0, t0);
+        detail::calc_line_point(line, model.line_fraction[p], c, t);
+        const Eigen::Quaterniond turn = t.squaredNorm() > 0.0 && t0.squaredNorm() > 0.0
+                                            ? Eigen::Quaterniond::FromTwoVectors(t0, t)
+                                            : Eigen::Quaterniond::Identity();
+        x.row(p) = (c + turn * (Vec3(model.rest.row(p).transpose()) - c0)).transpose();
         continue;
       }
       const double t = model.fibre_t[p];
@@ -778,7 +815,19 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
       const Vec3 xb = before.row(p);
       x.row(p) = (w * (step[ob] * xb) + (1.0 - w) * (step[ib] * xb)).transpose();
     }
+    // a fibre with a carried end: its free particles move by the interpolation (in fibre
+    // position t) of its two ends' displacements, not with the far bone's rigid motion
+    for (int f = 0; f < m.num_fibres; ++f) {
+      const int p0 = m.first_particle + f * P, p1 = p0 + P - 1;
+      if (model.role[p0] != ParticleRole::carried && model.role[p1] != ParticleRole::carried) continue;
+      const Vec3 d0 = (x.row(p0) - before.row(p0)).transpose(), d1 = (x.row(p1) - before.row(p1)).transpose();
+      for (int p = p0 + 1; p < p1; ++p)
+        if (model.role[p] == ParticleRole::free)
+          x.row(p) = before.row(p) + ((1.0 - model.fibre_t[p]) * d0 + model.fibre_t[p] * d1).transpose();
+    }
   }
+  const Points3 guess = x;  // before the extrapolation: the correction is measured from it
+  if (o.extrapolate_correction && ws.has_previous && ws.correction.rows() == N) x += ws.correction;
   Points3 inertial;
   if (o.dynamic) {
     // y = x_n + h v_n / (1 + c h): the inertial position with implicit velocity damping
@@ -917,6 +966,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
   if (o.dynamic) {
     ws.velocity = ws.has_previous ? Points3((x - ws.previous) / h) : Points3(Points3::Zero(N, 3));
   }
+  ws.correction = x - guess;
   ws.previous = x;
   ws.previous_motions = motions;
   ws.has_previous = true;

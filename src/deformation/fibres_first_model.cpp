@@ -192,6 +192,16 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
         throw_bad_input(fmt::format("muscle '{}' refers to bone {} but the model has {} bones",
                                     s.name, bone, nbones),
                         muscle_context(s.name));
+    if (s.action_line.rows() > 0) {
+      double length = 0.0;
+      for (Eigen::Index i = 1; i < s.action_line.rows(); ++i)
+        length += (s.action_line.row(i) - s.action_line.row(i - 1)).norm();
+      if (s.action_line.rows() < 2 || !s.action_line.allFinite() || !(length > 0.0))
+        throw_bad_input(fmt::format("the action line of muscle '{}' needs >= 2 finite points and a "
+                                    "positive length", s.name),
+                        muscle_context(s.name, "give the rest action line from origin to insertion, "
+                                               "or none"));
+    }
     total += static_cast<int>(s.fibres.size()) * P;
   }
   model.rest.resize(total, 3);
@@ -199,6 +209,7 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
   model.fibre_t.resize(total);
   model.role.assign(total, ParticleRole::free);
   model.fixed_bone.assign(total, -1);
+  model.line_fraction.assign(total, std::numeric_limits<double>::quiet_NaN());
   int offset = 0;
   for (std::size_t mi = 0; mi < specs.size(); ++mi) {
     const FibreBundleSpec& s = specs[mi];
@@ -209,6 +220,7 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
     m.first_particle = offset;
     m.num_fibres = static_cast<int>(s.fibres.size());
     m.num_particles = m.num_fibres * P;
+    m.rest_action_line = s.action_line;
     for (int f = 0; f < m.num_fibres; ++f) {
       const Points3& line = s.fibres[f];
       if (line.rows() < 2 || !line.allFinite())
@@ -278,16 +290,22 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
     }
     m.mean_spring_length_m = count > 0 ? mean / count : 0.0;
 
-    // fixed particles: fibre ends on their bones, then any particle close to the muscle's bones
+    // fixed particles: fibre ends on their bones (farther ends carried along the action line
+    // when there is one), then any particle close to the muscle's bones
     for (int f = 0; f < m.num_fibres; ++f)
       for (auto [i, bone] : {std::pair{0, m.origin_bone}, std::pair{P - 1, m.insertion_bone}}) {
-        if (bone < 0 || distance_to(bone, id(f, i)) > options.end_attachment_distance_m) continue;
-        model.role[id(f, i)] = ParticleRole::fixed;
-        model.fixed_bone[id(f, i)] = bone;
+        if (bone >= 0 && distance_to(bone, id(f, i)) <= options.end_attachment_distance_m) {
+          model.role[id(f, i)] = ParticleRole::fixed;
+          model.fixed_bone[id(f, i)] = bone;
+        } else if (m.rest_action_line.rows() >= 2) {
+          model.role[id(f, i)] = ParticleRole::carried;
+          model.line_fraction[id(f, i)] =
+              detail::calc_line_fraction(m.rest_action_line, model.rest.row(id(f, i)).transpose());
+        }
       }
     if (options.bone_attachment_distance_m > 0.0)
       for (int p = base; p < base + m.num_particles; ++p) {
-        if (model.role[p] == ParticleRole::fixed) continue;
+        if (model.role[p] != ParticleRole::free) continue;
         int best = -1;
         double best_d = options.bone_attachment_distance_m;
         for (int bone : {m.origin_bone, m.insertion_bone})
@@ -310,16 +328,17 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
     std::vector<char> reached(m.num_particles, 0);
     std::vector<int> queue;
     for (int p = 0; p < m.num_particles; ++p)
-      if (model.role[base + p] == ParticleRole::fixed) {
+      if (model.role[base + p] != ParticleRole::free) {
         reached[p] = 1;
         queue.push_back(p);
       }
     if (queue.empty())
       throw_bad_input(fmt::format("no particle of muscle '{}' is fixed to a bone: its fibres reach "
-                                  "neither the origin bone ({}) nor the insertion bone ({})",
+                                  "neither the origin bone ({}) nor the insertion bone ({}), and it "
+                                  "has no action line to carry them",
                                   m.name, m.origin_bone, m.insertion_bone),
-                      muscle_context(m.name, "check the muscle's bones, or raise "
-                                             "end_attachment_distance_m"));
+                      muscle_context(m.name, "check the muscle's bones, raise "
+                                             "end_attachment_distance_m, or give its action line"));
     for (std::size_t q = 0; q < queue.size(); ++q)
       for (int r : adjacency[queue[q]])
         if (!reached[r]) {
@@ -329,7 +348,7 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
     for (int p = 0; p < m.num_particles; ++p)
       if (!reached[p])
         throw_bad_input(fmt::format("fibre {} of muscle '{}' is connected to no particle fixed to a "
-                                    "bone", p / P, m.name),
+                                    "bone or carried by the action line", p / P, m.name),
                         muscle_context(m.name, "raise cross_neighbours or end_attachment_distance_m"));
     m.free_index.assign(m.num_particles, -1);
     for (int p = 0; p < m.num_particles; ++p)

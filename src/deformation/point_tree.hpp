@@ -1,5 +1,5 @@
-// Private to the deformation module: a nanoflann k-d tree over the rows of a #P x 3 array, and the
-// fibres-first inside test of a point against a bone.
+// Private to the deformation module: a nanoflann k-d tree over the rows of a #P x 3 array, the
+// fibres-first inside test of a point against a bone, and arc-length fractions on polylines.
 #pragma once
 
 #include "fascicle/core/types.hpp"
@@ -7,7 +7,10 @@
 
 #include <nanoflann.hpp>
 
+#include <algorithm>
 #include <cstddef>
+#include <cmath>
+#include <limits>
 
 namespace fascicle::detail {
 
@@ -36,6 +39,45 @@ inline bool calc_is_behind_bone(const MeshQuery& bone, const Vec3& p, const Clos
   if (face_normal) *face_normal = n;
   const bool on_face = cp.barycentric.minCoeff() > 1e-9 && n.norm() > 0.0;
   return on_face ? (p - cp.point).dot(n) < 0.0 : bone.calc_is_inside(p);
+}
+
+// Arc-length fraction in [0, 1] of the point of polyline `line` (>= 2 rows) closest to p.
+inline double calc_line_fraction(const Points3& line, const Vec3& p) {
+  double total = 0.0, best_d2 = std::numeric_limits<double>::infinity(), best_s = 0.0;
+  for (Eigen::Index k = 0; k + 1 < line.rows(); ++k) {
+    const Vec3 a = line.row(k).transpose(), b = line.row(k + 1).transpose();
+    const double len2 = (b - a).squaredNorm();
+    const double u = len2 > 0.0 ? std::clamp((p - a).dot(b - a) / len2, 0.0, 1.0) : 0.0;
+    const double d2 = (a + u * (b - a) - p).squaredNorm();
+    if (d2 < best_d2) {
+      best_d2 = d2;
+      best_s = total + u * std::sqrt(len2);
+    }
+    total += std::sqrt(len2);
+  }
+  return total > 0.0 ? best_s / total : 0.0;
+}
+
+// The point of polyline `line` (>= 2 rows) at arc-length fraction s, and the unit direction of
+// the segment it lies on (zero for a degenerate line).
+inline void calc_line_point(const Points3& line, double s, Vec3& point, Vec3& tangent) {
+  double total = 0.0;
+  for (Eigen::Index k = 0; k + 1 < line.rows(); ++k) total += (line.row(k + 1) - line.row(k)).norm();
+  const double target = std::clamp(s, 0.0, 1.0) * total;
+  double walked = 0.0;
+  point = line.row(line.rows() - 1).transpose();
+  tangent = Vec3::Zero();
+  for (Eigen::Index k = 0; k + 1 < line.rows(); ++k) {
+    const Vec3 a = line.row(k).transpose(), b = line.row(k + 1).transpose();
+    const double len = (b - a).norm();
+    if (len <= 0.0) continue;
+    tangent = (b - a) / len;
+    if (walked + len >= target || k + 2 == line.rows()) {
+      point = a + std::clamp((target - walked) / len, 0.0, 1.0) * (b - a);
+      return;
+    }
+    walked += len;
+  }
 }
 
 }  // namespace fascicle::detail

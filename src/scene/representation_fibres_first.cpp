@@ -54,6 +54,9 @@ class FibresFirst final : public MuscleGroupRepresentation {
     o.damping_per_s = get_option(first, "damping", o.damping_per_s);
     o.max_iterations = static_cast<int>(get_option(first, "iterations", o.max_iterations));
     o.max_contact_rounds = static_cast<int>(get_option(first, "contact_rounds", o.max_contact_rounds));
+    // Fibre ends within this distance of their bone are fixed to it; the others are carried along
+    // the action line (a tendon), so a tendon-less belly does not turn rigidly with a far bone.
+    o.end_attachment_distance_m = get_option(first, "end_attachment_distance", 0.005);
 
     std::vector<FibreBundleSpec> specs;
     for (MuscleIndex mi : muscles) {
@@ -81,6 +84,7 @@ class FibresFirst final : public MuscleGroupRepresentation {
                                                          model.bodies[(s.origin_bone < 0 ? m.origin : m.insertion).body.v].name +
                                                          "' a mesh, or use 'surface_first'"});
       s.volume_m3 = m.rest_volume_m3;
+      s.action_line = line;
       specs.push_back(std::move(s));
     }
     model_ = build_fibres_first_model(specs, bones, o);
@@ -114,6 +118,7 @@ class FibresFirst final : public MuscleGroupRepresentation {
     if (!frame) throw_internal("fibres_first: the State was not made for this Model (make_state)");
     FibresFirstInput input;
     for (BodyIndex b : bone_bodies_) input.bone_motions.push_back(calc_body_motion(model, state, b));
+    for (size_t k = 0; k < muscles.size(); ++k) input.action_lines.push_back(out[k]->action_line);
     if (std::isfinite(frame->last_time_s) && state.time_s > frame->last_time_s)
       input.time_step_s = state.time_s - frame->last_time_s;
     frame->solver.calc_frame(input);

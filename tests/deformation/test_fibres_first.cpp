@@ -148,6 +148,61 @@ TEST(FibresFirst, StretchedFibreSettlesToTheAnalyticEquilibrium) {
   }
 }
 
+// A belly from the bottom slab to 30 mm short of the top one: its distal ends are too far from
+// the top slab to be fixed to it, so they are carried along the action line (a tendon) at their
+// rest arc-length fraction 0.05 / 0.08, not rigidly with the slab.
+TEST(FibresFirst, FarEndsAreCarriedAlongTheActionLine) {
+  const EndBones bones(0.08);
+  FibreBundleSpec spec{"belly", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), 0.05, 3, 3, 0.004), 0, 1};
+  Points3 line(2, 3);
+  line << 0, 0, 0, 0, 0, 0.08;
+  spec.action_line = line;
+  FibresFirstOptions o = tight_options();
+  o.end_attachment_distance_m = 0.005;
+  const FibresFirstModel model = build_fibres_first_model({spec}, bones.list(), o);
+  const int P = o.particles_per_fibre;
+  for (int f = 0; f < 9; ++f) {
+    EXPECT_EQ(model.role[f * P], ParticleRole::fixed);
+    EXPECT_EQ(model.fixed_bone[f * P], 0);
+    EXPECT_EQ(model.role[f * P + P - 1], ParticleRole::carried);
+    EXPECT_NEAR(model.line_fraction[f * P + P - 1], 0.625, 1e-12);
+  }
+  // the top slab moves 20 mm up: the line's point at 0.625 moves 12.5 mm, given or derived
+  Points3 longer(2, 3);
+  longer << 0, 0, 0, 0, 0, 0.10;
+  for (bool given : {true, false}) {
+    FibresFirstSolver solver(model);
+    FibresFirstInput input{{Transform::Identity(), translation(Vec3(0, 0, 0.02))}};
+    if (given) input.action_lines = {longer};
+    solver.calc_frame(input);
+    const Points3& x = solver.get_particles();
+    for (int f = 0; f < 9; ++f) {
+      const Vec3 expected = model.rest.row(f * P + P - 1).transpose() + Vec3(0, 0, 0.0125);
+      EXPECT_LT((x.row(f * P + P - 1).transpose() - expected).norm(), 1e-12) << given;
+      EXPECT_EQ(x.row(f * P), model.rest.row(f * P));
+    }
+    EXPECT_LT(solver.get_muscles()[0].relative_volume_error, 1e-3);
+  }
+  // the line turned by 90 deg about x through the origin: the end layer turns with it
+  Points3 turned(2, 3);
+  turned << 0, 0, 0, 0, -0.08, 0;
+  FibresFirstSolver solver(model);
+  FibresFirstInput input{{Transform::Identity(), Transform::Identity()}};
+  input.action_lines = {turned};
+  solver.calc_frame(input);
+  const Mat3 R = Eigen::AngleAxisd(M_PI / 2, Vec3::UnitX()).toRotationMatrix();
+  for (int f = 0; f < 9; ++f)
+    EXPECT_LT((solver.get_particles().row(f * P + P - 1).transpose() -
+               R * model.rest.row(f * P + P - 1).transpose()).norm(), 1e-12);
+  // bad input: a wrong number of lines, a non-finite line, a degenerate rest line
+  EXPECT_THROW(solver.calc_frame({{Transform::Identity(), Transform::Identity()}, 0.0, {longer, longer}}), Error);
+  Points3 broken = longer;
+  broken(1, 2) = std::nan("");
+  EXPECT_THROW(solver.calc_frame({{Transform::Identity(), Transform::Identity()}, 0.0, {broken}}), Error);
+  spec.action_line = Points3::Zero(2, 3);
+  EXPECT_THROW(build_fibres_first_model({spec}, bones.list(), o), Error);
+}
+
 // Longitudinal oscillation of one particle between two fixed ones: omega = sqrt(2 k / m).
 TEST(FibresFirst, DynamicParticleOscillatesAtTheSpringFrequency) {
   const double L = 0.02;

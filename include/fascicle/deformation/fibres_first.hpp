@@ -31,6 +31,10 @@ struct FibreBundleSpec {
   int insertion_bone = -1;      // index into the model's bones; last particles follow it
   // Rest volume used for the particle masses (m^3); <= 0: the volume of the reconstructed surface.
   double volume_m3 = 0.0;
+  // Optional rest action line (origin -> via points -> insertion, world, >= 2 points). When given,
+  // a fibre end farther than end_attachment_distance_m from its bone is carried along the action
+  // line (a tendon) instead of being left free; see ParticleRole::carried.
+  Points3 action_line;
 };
 
 struct FibresFirstOptions {
@@ -50,7 +54,8 @@ struct FibresFirstOptions {
   int max_volume_iterations = 8;     // final Gauss-Newton steps on the volume constraint
   // Fixing particles to bones. A fibre's first (last) particle is fixed to the origin (insertion)
   // bone when it lies within end_attachment_distance_m of that bone's surface (infinity: always,
-  // a rigid-tendon model for bellies without tendons). Any other particle within
+  // a rigid-tendon model for bellies without tendons). A farther end is carried along the
+  // muscle's action line when its spec has one (a tendon), else free. Any other particle within
   // bone_attachment_distance_m of its muscle's origin or insertion bone is fixed to the nearer one
   // (seed 002's rule; 0: off).
   double end_attachment_distance_m = std::numeric_limits<double>::infinity();
@@ -59,6 +64,11 @@ struct FibresFirstOptions {
   // since the last frame, weight w(t) = a t^2 - (a+1) t + 1 of the origin bone at normalised fibre
   // position t (Modenese and Kohout 2020); a in [-1, 1] keeps w monotone.
   double blend_a = 0.0;
+  // Warm start: add to that guess the previous frame's correction (its converged minus its guessed
+  // free positions), a first-order extrapolation of what the iterations will do for smooth motion.
+  // Off by default: it can carry particles through a neighbour before its contacts are detected
+  // (the two-bundle test fails with it), and its effect on the iteration count is not measured.
+  bool extrapolate_correction = false;
   // Contacts. A particle that enters a bone (deeper than it was at rest) is held at the bone
   // surface plus bone_margin_m; particles of different muscles are kept at least
   // min(muscle_margin_m, their rest distance) apart.
@@ -86,8 +96,11 @@ struct FibresFirstOptions {
   double default_time_step_s = 1.0 / 60.0;
 };
 
-// Where a particle is held.
-enum class ParticleRole : unsigned char { free, fixed };
+// Where a particle is held: free (solved for), fixed to a bone (moves rigidly with it), or carried
+// along its muscle's action line (a fibre end away from the bones: it keeps its rest arc-length
+// fraction s on the line and its rest offset from the line, turned by the minimal rotation of the
+// line's tangent there; a tendon between the belly end and the bone).
+enum class ParticleRole : unsigned char { free, fixed, carried };
 
 // One muscle of the model: particles (rows of the model's particle arrays) and its springs.
 struct FibreBundle {
@@ -96,6 +109,7 @@ struct FibreBundle {
   int first_particle = 0;   // particles [first_particle, first_particle + num_particles)
   int num_particles = 0;
   int num_fibres = 0;       // particle (f, i) = first_particle + f * particles_per_fibre + i
+  Points3 rest_action_line; // the spec's action line (empty: none)
   std::vector<int> free;    // model particle indices of its free particles (sorted)
   std::vector<int> free_index;  // per muscle particle: index into `free`, or -1
   std::vector<int> boundary_fibres;  // the rest cross-section's convex hull, counter-clockwise
@@ -127,6 +141,8 @@ struct FibresFirstModel {
   std::vector<double> fibre_t;           // per particle: normalised position along its fibre
   std::vector<ParticleRole> role;        // per particle
   std::vector<int> fixed_bone;           // per particle: bone it follows (fixed), or -1
+  std::vector<double> line_fraction;     // per particle: arc-length fraction on the rest action
+                                         // line (carried), or NaN
   std::vector<Spring> springs;           // grouped by muscle
   std::vector<int> first_spring;         // per muscle, plus one past the end
   // Per bone, per particle: distance to the bone surface at rest when outside it (culls contact
@@ -153,6 +169,10 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& mu
 struct FibresFirstInput {
   std::vector<Transform> bone_motions;  // per bone, X_now_rest (empty: all bones at rest)
   double time_step_s = 0.0;             // dynamic mode only (0: options.default_time_step_s)
+  // Per muscle, its current action line (any number of points >= 2; used for carried particles).
+  // Empty: every muscle's rest action line with each point moved by the blend (blend_a) of its
+  // origin and insertion bones' motions at the point's arc-length fraction.
+  std::vector<Points3> action_lines;
 };
 
 // Per muscle results of a frame (NaN until solved). Penetration counts free particles only,
