@@ -8,10 +8,12 @@
 #include <omp.h>
 
 #include <Eigen/CholmodSupport>
+#include <Eigen/LU>
 #include <Eigen/SparseCholesky>
 
 #include <algorithm>
 #include <cmath>
+#include <iterator>
 #include <fmt/format.h>
 
 namespace fascicle {
@@ -297,6 +299,22 @@ struct SurfaceFirstSolver::Factor {
   SparseMatrix K;                  // system + contact weights on the diagonal
   std::vector<Eigen::Index> diag;  // position of K(j, j) in K.valuePtr()
   SparseCholesky base, with_contacts;
+
+  // The factor solve() uses, and a low-rank correction of it (Woodbury identity): with U the unit
+  // columns e_j of the vertices in `low_rank` and W = diag(low_rank_weight) (+w_c for a contact
+  // the factor lacks, -w_c for one it has but is not wanted),
+  //   (K + U W U^T)^-1 r = y - Z C^-1 U^T y,  y = K^-1 r,  Z = K^-1 U,  C = W^-1 + U^T Z.
+  bool use_contacts = false;
+  std::vector<int> low_rank;
+  VecX low_rank_weight;
+  Eigen::MatrixXd Z;
+  Eigen::PartialPivLU<Eigen::MatrixXd> capacitance;
+  // Columns K^-1 e_j already computed, per factor (0: base, 1: with_contacts): free index ->
+  // column. Cleared when that factor changes or grows past a bound.
+  std::vector<int> column_of[2];
+  std::vector<VecX> columns[2];
+
+  const SparseCholesky& get_active() const { return use_contacts ? with_contacts : base; }
 };
 
 SurfaceFirstSolver::SurfaceFirstSolver(const SurfaceBinding& binding, BoneQueries bones)
@@ -373,7 +391,77 @@ void SurfaceFirstSolver::factorise() {
 
 Points3 SurfaceFirstSolver::solve(const Eigen::MatrixXd& rhs) const {
   const Factor& f = *factor_;
-  return contacts_.empty() ? f.base.solve(rhs) : f.with_contacts.solve(rhs);
+  Eigen::MatrixXd y = f.get_active().solve(rhs);
+  if (!f.low_rank.empty()) {
+    Eigen::MatrixXd t(static_cast<Eigen::Index>(f.low_rank.size()), y.cols());
+    for (std::size_t k = 0; k < f.low_rank.size(); ++k) t.row(static_cast<Eigen::Index>(k)) = y.row(f.low_rank[k]);
+    y.noalias() -= f.Z * f.capacitance.solve(t);
+  }
+  return y;
+}
+
+void SurfaceFirstSolver::prepare_factor(const std::vector<int>& wanted) {
+  Factor& f = *factor_;
+  const SurfaceBinding& b = binding_;
+  const double wc = b.options.contact_weight * b.diagonal_scale;
+  f.low_rank.clear();
+  // differences from the contact-free factor (= wanted) and from the contact factor
+  std::vector<int> added, removed;
+  const auto diff_from = [&](const std::vector<int>& have) {
+    added.clear();
+    removed.clear();
+    std::set_difference(wanted.begin(), wanted.end(), have.begin(), have.end(), std::back_inserter(added));
+    std::set_difference(have.begin(), have.end(), wanted.begin(), wanted.end(), std::back_inserter(removed));
+    return added.size() + removed.size();
+  };
+  const std::size_t to_base = wanted.size();
+  const std::size_t to_contacts = analysed_contacts_ ? diff_from(factorised_contacts_) : to_base + 1;
+  const auto limit = static_cast<std::size_t>(std::max(0, b.options.max_low_rank));
+  if (std::min(to_base, to_contacts) > limit) {
+    factorise();
+    f.use_contacts = true;
+    f.column_of[1].clear();
+    f.columns[1].clear();
+    return;
+  }
+  f.use_contacts = to_contacts < to_base;
+  if (!f.use_contacts) diff_from({});
+  if (added.empty() && removed.empty()) return;
+
+  // the low-rank set, its weights and the columns K^-1 e_j (new ones in one multi-column solve)
+  const int which = f.use_contacts ? 1 : 0;
+  const auto nf = static_cast<Eigen::Index>(b.free_vertices.size());
+  std::vector<int>& column_of = f.column_of[which];
+  std::vector<VecX>& columns = f.columns[which];
+  if (columns.size() > 8 * limit) {
+    column_of.clear();
+    columns.clear();
+  }
+  if (column_of.empty()) column_of.assign(static_cast<std::size_t>(nf), -1);
+  f.low_rank = added;
+  f.low_rank.insert(f.low_rank.end(), removed.begin(), removed.end());
+  const auto r = static_cast<Eigen::Index>(f.low_rank.size());
+  f.low_rank_weight.resize(r);
+  for (Eigen::Index k = 0; k < r; ++k) f.low_rank_weight[k] = k < static_cast<Eigen::Index>(added.size()) ? wc : -wc;
+  std::vector<int> missing;
+  for (int j : f.low_rank)
+    if (column_of[j] < 0) missing.push_back(j);
+  if (!missing.empty()) {
+    Eigen::MatrixXd E = Eigen::MatrixXd::Zero(nf, static_cast<Eigen::Index>(missing.size()));
+    for (std::size_t k = 0; k < missing.size(); ++k) E(missing[k], static_cast<Eigen::Index>(k)) = 1.0;
+    const Eigen::MatrixXd solved = f.get_active().solve(E);
+    for (std::size_t k = 0; k < missing.size(); ++k) {
+      column_of[missing[k]] = static_cast<int>(columns.size());
+      columns.push_back(solved.col(static_cast<Eigen::Index>(k)));
+    }
+  }
+  f.Z.resize(nf, r);
+  for (Eigen::Index k = 0; k < r; ++k) f.Z.col(k) = columns[column_of[f.low_rank[k]]];
+  Eigen::MatrixXd C(r, r);
+  for (Eigen::Index k = 0; k < r; ++k) C.row(k) = f.Z.row(f.low_rank[k]);
+  C.diagonal() += f.low_rank_weight.cwiseInverse();
+  f.capacitance.compute(C);
+  ++info_.low_rank_updates;
 }
 
 // Minimises the quadratic energy E(x) = 1/2 x^T K x - b^T x subject to V(x) = V0 (docs: "volume
@@ -497,8 +585,10 @@ const Points3& SurfaceFirstSolver::calc_frame(const SurfaceFrameInput& input) {
   const int nx = static_cast<int>(b.fixed_vertices.size());
   const int nf = static_cast<int>(b.free_vertices.size());
   const int factorisations_before = info_.factorisations;
+  const int low_rank_before = info_.low_rank_updates;
   info_ = {};
   info_.factorisations = factorisations_before;
+  info_.low_rank_updates = low_rank_before;
 
   // check input sizes
   const bool by_targets = input.attachment_targets.rows() > 0;
@@ -558,7 +648,7 @@ const Points3& SurfaceFirstSolver::calc_frame(const SurfaceFrameInput& input) {
     std::vector<int> wanted;
     for (const Contact& c : contacts_) wanted.push_back(b.free_index[c.vertex]);
     std::sort(wanted.begin(), wanted.end());
-    if (!contacts_.empty() && wanted != factorised_contacts_) factorise();
+    prepare_factor(wanted);
 
     Points3 rhs = rhs_base;
     for (const Contact& c : contacts_) {

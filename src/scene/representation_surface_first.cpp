@@ -34,6 +34,7 @@ class SurfaceFirst final : public MuscleRepresentation {
     options.line_samples = static_cast<int>(get_option(m, "line_samples", options.line_samples));
     options.max_volume_error = get_option(m, "max_volume_error", options.max_volume_error);
     options.max_contact_rounds = static_cast<int>(get_option(m, "max_contact_rounds", options.max_contact_rounds));
+    options.max_low_rank = static_cast<int>(get_option(m, "max_low_rank", options.max_low_rank));
 
     // Bones the muscle may touch: meshes whose rest box comes within `bone_margin` of the muscle's.
     const double margin = get_option(m, "bone_margin", 0.02);
@@ -99,9 +100,10 @@ class SurfaceFirst final : public MuscleRepresentation {
     for (BodyIndex b : bone_bodies_) input.bone_motions.push_back(calc_body_motion(model, state, b));
     out.surface = frame->solver.calc_frame(input);
     const SurfaceFrameInfo& info = frame->solver.get_info();
-    spdlog::debug("surface_first '{}' t = {:.3f} s: {} contacts, {} rounds, {} solves, {} factorisations so far",
+    spdlog::debug("surface_first '{}' t = {:.3f} s: {} contacts, {} rounds, {} solves, {} factorisations and {} "
+                  "low-rank updates so far",
                   model.get_muscle(mi).name, state.time_s, info.active_contacts, info.contact_rounds,
-                  info.volume_iterations, info.factorisations);
+                  info.volume_iterations, info.factorisations, info.low_rank_updates);
     out.volume_m3 = info.volume_m3;
     out.relative_volume_change = info.volume_m3 / binding_.rest_volume_m3 - 1.0;
     out.max_bone_penetration_m = info.max_penetration_beyond_rest_m;

@@ -44,6 +44,10 @@ struct SurfaceFirstOptions {
   double contact_margin_m = 1e-4;     // a contact vertex is held this far outside the bone
   double contact_tolerance_m = 1e-5;  // depth beyond the rest depth that triggers a contact
   int max_contact_rounds = 8;         // solve -> detect -> add/release rounds per frame
+  // When the wanted contact set differs from a factorised one (the contact-free factor or the
+  // last contact factor) by at most this many vertices, the factor is corrected by a low-rank
+  // (Woodbury) update instead of a numeric refactorisation; 0 always refactorises.
+  int max_low_rank = 32;
   int max_volume_iterations = 10;     // Gauss-Newton iterations on the volume constraint
   // Stop when the relative change of the volume gradient between iterations (the relative KKT
   // residual of the constrained problem) is below this. The volume is exact at every iterate; this
@@ -125,6 +129,7 @@ struct SurfaceFrameInfo {
   int contact_rounds = 0;
   int active_contacts = 0;
   int factorisations = 0;
+  int low_rank_updates = 0;  // contact-set changes handled by a low-rank correction (so far)
 };
 
 // Per-muscle solver: prefactorises the system once and refactorises (numerically only, same
@@ -166,6 +171,9 @@ class SurfaceFirstSolver {
 
  private:
   void factorise();
+  // Makes solve() use K + w_c sum_{j in wanted} e_j e_j^T (wanted: sorted free indices): the
+  // nearer factorised set plus a low-rank correction, or a numeric refactorisation.
+  void prepare_factor(const std::vector<int>& wanted);
   Points3 solve(const Eigen::MatrixXd& rhs) const;
   int solve_volume(const Points3& rhs_free, const Points3& fixed, Points3& X);
   bool update_contacts(const Points3& X, const std::vector<Transform>& bone_motions);
