@@ -123,8 +123,16 @@ VolumeAndGradient calc_volume_and_gradient(const BSplineSolid& s) {
   return out;
 }
 
+namespace {
+// __builtin_cpu_init makes the query safe even from static initialisers (idempotent, cheap).
+bool cpu_has_avx2() {
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("avx2");
+}
+}  // namespace
+
 BoundaryVolumeIntegrator::BoundaryVolumeIntegrator(const BSplineSolid& lattice, bool allow_avx2)
-    : basis_(lattice.basis), lanes_(allow_avx2 && __builtin_cpu_supports("avx2") ? 4 : 2) {
+    : basis_(lattice.basis), lanes_(allow_avx2 && cpu_has_avx2() ? 4 : 2) {
   for (int d = 0; d < 3; ++d) {
     if (!basis_[d].periodic && !basis_[d].is_clamped()) {
       throw_bad_input(
