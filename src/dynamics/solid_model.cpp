@@ -229,23 +229,35 @@ SolidDynamicsModel compile_solid_dynamics(const BSplineSolid& rest, const SolidD
     const BoundaryTessellation t =
         make_boundary_tessellation(rest, std::max(1, spec.contact_samples_per_span));
     // Boundary samples, then the given material points (their supports too lie in one span).
-    std::vector<Vec3> material;
-    for (Eigen::Index v = 0; v < t.material.rows(); ++v) material.push_back(t.material.row(v).transpose());
-    const Vec3 lo = rest.get_lower(), hi = rest.get_upper();
-    for (const Vec3& U : spec.contact_material_points) {
-      if (!U.allFinite())
-        throw_bad_input("solid dynamics: a contact material point is not finite",
-                        {.object = rest.name, .suggestion = "give material points inside the solid's parameter box"});
-      material.push_back(U.cwiseMax(lo).cwiseMin(hi));
+    std::vector<Vec3> material, offset;
+    for (Eigen::Index v = 0; v < t.material.rows(); ++v) {
+      material.push_back(t.material.row(v).transpose());
+      offset.push_back(Vec3::Zero());
     }
-    for (const Vec3& U : material) {
-      const Support sp = calc_support(rest, U);
+    const Vec3 lo = rest.get_lower(), hi = rest.get_upper();
+    const auto& extra = spec.contact_material_points;
+    const auto& extra_offset = spec.contact_material_offsets;
+    if (!extra_offset.empty() && extra_offset.size() != extra.size())
+      throw_bad_input(fmt::format("solid dynamics: {} contact material offsets for {} contact material points",
+                                  extra_offset.size(), extra.size()),
+                      {.object = rest.name, .suggestion = "give one offset per point, or none"});
+    for (std::size_t i = 0; i < extra.size(); ++i) {
+      const Vec3 dU = extra_offset.empty() ? Vec3::Zero() : extra_offset[i];
+      if (!extra[i].allFinite() || !dU.allFinite())
+        throw_bad_input("solid dynamics: a contact material point or offset is not finite",
+                        {.object = rest.name, .suggestion = "give material points inside the solid's parameter box"});
+      material.push_back(extra[i].cwiseMax(lo).cwiseMin(hi));
+      offset.push_back(dU);
+    }
+    for (std::size_t v = 0; v < material.size(); ++v) {
+      const Support sp = calc_support(rest, material[v]);
       SolidDynamicsModel::ContactSample cs;
-      cs.material = U;
+      cs.material = material[v];
       for (std::size_t a = 0; a < sp.index.size(); ++a) {
-        if (sp.N[a] == 0.0) continue;
+        const double w = sp.N[a] + sp.dN[a].dot(offset[v]);
+        if (w == 0.0) continue;
         cs.index.push_back(sp.index[a]);
-        cs.N.push_back(sp.N[a]);
+        cs.N.push_back(w);
       }
       m.contact_samples.push_back(std::move(cs));
     }

@@ -154,7 +154,7 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
       }
 
     // Rest-mesh vertices within contact_margin of a contact bone (inside included).
-    const double contact_margin = get_option(m, "contact_margin", 0.005);
+    const double contact_margin = get_option(m, "contact_margin", 0.01);
     std::vector<char> near_bone(static_cast<std::size_t>(m.rest_mesh.V.rows()), 0);
     for (const BodyIndex b : bone_bodies_) {
       const VecX sd = model.get_body(b).rest_query->calc_signed_distances(m.rest_mesh.V);
@@ -175,9 +175,14 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
         // Contact samples at the material points of the rest-mesh vertices near a contact bone
         // (the output surface is embedded there), in addition to the boundary samples.
         locate_rest_surface(m, solid);
+        embed_rest_surface(m, solid);
         spec.contact_material_points.clear();
+        spec.contact_material_offsets.clear();
         for (std::size_t i = 0; i < vertex_material_.size(); ++i)
-          if (near_bone[i]) spec.contact_material_points.push_back(vertex_material_[i]);
+          if (near_bone[i]) {
+            spec.contact_material_points.push_back(vertex_material_[i]);
+            spec.contact_material_offsets.push_back(offset_material_.row(static_cast<Eigen::Index>(i)).transpose());
+          }
         // Which end layer is the origin: the one nearer the origin landmarks' centroid.
         const auto layer_centroid = [&](int side) {
           Vec3 c = Vec3::Zero();
@@ -205,13 +210,14 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
         spdlog::debug("muscle '{}': solid fit {} rejected ({}); trying another", m.name, attempt, e.message());
       }
     }
+    spdlog::debug("muscle '{}': solid dynamics with {} contact bones, {} contact samples ({} at rest-mesh vertices)",
+                  m.name, bone_bodies_.size(), model_->contact_samples.size(), spec.contact_material_points.size());
     const Points3 rest_line = calc_rest_action_line(model, m);
     ends_[0] = make_end_driver(model, m, m.origin, false, rest_line, origin_layer);
     ends_[1] = make_end_driver(model, m, m.insertion, true, rest_line, insertion_layer);
     solver_options_.integrator = Integrator::backward_euler;
     solver_options_.reuse_factorisation_steps = std::max(0, options_.reuse_factorisation);
 
-    embed_rest_surface(m);
     make_fibre_grid(m);
     setup_penetration(model, m);
   }
@@ -359,9 +365,8 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
     });
   }
 
-  void embed_rest_surface(const Muscle& m) {
+  void embed_rest_surface(const Muscle& m, const BSplineSolid& solid) {
     const Points3& X = m.rest_mesh.V;
-    const BSplineSolid& solid = model_->rest;
     const int n = solid.num_control_points();
     const auto rows = X.rows();
     std::array<std::vector<Eigen::Triplet<double>>, 4> t;

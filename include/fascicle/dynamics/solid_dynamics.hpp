@@ -113,6 +113,9 @@ struct SolidDynamicsSpec {
   // Further contact samples at these material points (u, v, w), e.g. the vertices of a surface
   // embedded in the solid, so that the contact acts where that surface is.
   std::vector<Vec3> contact_material_points;
+  // Optional, one per contact material point: the sample is x(U) + J(U) dU (to first order the
+  // point at U + dU, e.g. a surface vertex just outside the solid), weights N_I + ∇_U N_I · dU.
+  std::vector<Vec3> contact_material_offsets;
   double contact_stiffness_N_m = 0.0;  // per sample; 0: the planes' stiffness, else automatic
 };
 
