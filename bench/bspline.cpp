@@ -99,7 +99,7 @@ BENCHMARK(BM_LocateOutside);
 // Tessellation update for about 10k boundary vertices (positions and normals).
 void BM_TessellationUpdate10k(benchmark::State& state) {
   const auto s = make_bench_solid();
-  auto t = make_boundary_tessellation(s, 9);
+  auto t = make_boundary_tessellation(s, 12);  // 12 samples per span: ≈ 11k vertices
   state.counters["vertices"] = static_cast<double>(t.mesh.V.rows());
   Points3 P = s.P;
   for (auto _ : state) {
@@ -112,7 +112,7 @@ BENCHMARK(BM_TessellationUpdate10k)->Unit(benchmark::kMicrosecond);
 
 void BM_VolumeTessellationUpdate10k(benchmark::State& state) {
   const auto s = make_bench_solid();
-  auto t = make_volume_tessellation(s, 4);
+  auto t = make_volume_tessellation(s, 6);  // 6 per span: 19 × 19 × 31 ≈ 11k nodes
   state.counters["nodes"] = static_cast<double>(t.V.rows());
   for (auto _ : state) {
     update_tessellation(t, s.P);

@@ -8,6 +8,7 @@
 #include "fascicle/scene/state.hpp"
 #include "muscle_setup.hpp"
 
+#include <limits>
 #include <cmath>
 
 namespace fascicle {
@@ -56,7 +57,11 @@ class FibresFirst final : public MuscleGroupRepresentation {
     o.max_contact_rounds = static_cast<int>(get_option(first, "contact_rounds", o.max_contact_rounds));
     // Fibre ends within this distance of their bone are fixed to it; the others are carried along
     // the action line (a tendon), so a tendon-less belly does not turn rigidly with a far bone.
-    o.end_attachment_distance_m = get_option(first, "end_attachment_distance", 0.005);
+    // Default: every end fixed (the library's rigid-tendon default). Carrying keeps the rest
+    // arc-length fraction, which on gait2392's generated bellies breaks the 0.5 % volume hold at
+    // the first frame (ext_hal_r 0.54 %), so scenes opt in (examples/vh_shank uses 5 mm).
+    o.end_attachment_distance_m =
+        get_option(first, "end_attachment_distance", std::numeric_limits<double>::infinity());
 
     std::vector<FibreBundleSpec> specs;
     for (MuscleIndex mi : muscles) {

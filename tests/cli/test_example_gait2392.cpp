@@ -49,6 +49,29 @@ TEST(ExampleGait2392, RightLegWalksWithVolumesHeld) {
   EXPECT_TRUE(fs::exists(out / "summary.json"));
 }
 
+// The same walk with every muscle fibres-first (one particle group): the first frame starts far
+// from the rest pose, and each muscle's volume must be held within the representation's 0.5 %.
+TEST(ExampleGait2392, RightLegWalksFibresFirst) {
+  test::data_path("opensim/models/gait2392_millard2012muscle.osim");
+  const fs::path scene = test::source_path("examples/gait2392_walk/scene.json");
+  const fs::path out = test::scratch_dir("gait2392_walk_fibres_first");
+  const auto r = test::run_command(std::string(FASCICLE_CLI_PATH) + " -q --threads 1 run " +
+                                   scene.string() +
+                                   " --representation fibres-first --frames 3 --outputs sto --out " +
+                                   out.string() + " 2>&1");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const Table sto = read_table(out / "gait2392_walk_right_leg_muscles.sto");
+  EXPECT_EQ(sto.rows(), 3);
+  int muscles = 0;
+  for (const std::string& label : sto.labels) {
+    const auto dot = label.find('.');
+    if (label.substr(dot + 1) != "relative_volume_change") continue;
+    ++muscles;
+    EXPECT_LT(sto.data.col(find_column(sto, label)).cwiseAbs().maxCoeff(), 5e-3) << label;
+  }
+  EXPECT_EQ(muscles, 46);
+}
+
 TEST(ExampleGait2392, UnknownMusclePatternIsBadInput) {
   const fs::path out = test::scratch_dir("gait2392_bad");
   const auto r = test::run_command(std::string(FASCICLE_CLI_PATH) + " run --model " +

@@ -364,6 +364,9 @@ Derivation derive() {
     const double lts = r.neutral_length_m.at(m.name) - along;
     muscles.push_back({{"name", m.name},
                        {"representation", "surface_first"},
+                       // Fibres-first (when chosen): ends farther than 5 mm from a bone ride on
+                       // the action line, as these tendon-less bellies need (docs/representations.md).
+                       {"options", {{"end_attachment_distance", 0.005}}},
                        {"mesh", kSceneDataPrefix + vh_file(m.mesh)},
                        {"origin", {{"body", "shank"}, {"points", origin_points}, {"radius", kOriginRadiusMm}}},
                        {"insertion", {{"body", ins.body}, {"points", json::array({mm(ins.p)})}, {"radius", kInsertionRadiusMm}}},
