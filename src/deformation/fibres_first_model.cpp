@@ -192,6 +192,11 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
         throw_bad_input(fmt::format("muscle '{}' refers to bone {} but the model has {} bones",
                                     s.name, bone, nbones),
                         muscle_context(s.name));
+    if (s.origin_bone < 0 && s.insertion_bone < 0)
+      throw_bad_input(fmt::format("muscle '{}' has neither an origin nor an insertion bone: its "
+                                  "fibres cannot be attached or carried",
+                                  s.name),
+                      muscle_context(s.name, "give the muscle at least one bone"));
     if (s.action_line.rows() > 0) {
       double length = 0.0;
       for (Eigen::Index i = 1; i < s.action_line.rows(); ++i)

@@ -257,7 +257,9 @@ SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_act
 // CHOLMOD 3's supernodal numeric factorisation also asks for a fixed team (num_threads(4) on its
 // copy loops), which overrides that ICV: those teams spun on the two cores for ≈ 8 % of the VH
 // shank run's CPU. With no active parallel level allowed, every OpenMP region runs on the thread
-// that meets it (same arithmetic, so the same results).
+// that meets it (same arithmetic, so the same results). In libgomp that limit may be one value for
+// the whole process rather than per thread: harmless here, as fascicle parallelises with TBB and
+// wants no OpenMP teams anywhere; each caller writes the same value.
 void use_single_threaded_cholmod() {
   omp_set_num_threads(1);
   if (omp_get_max_active_levels() != 0) omp_set_max_active_levels(0);
@@ -353,6 +355,17 @@ void SurfaceFirstSolver::reset() {
   vertices_ = binding_.rest.V;
   has_previous_ = false;
   info_ = {};
+  // Back to a fresh solver's factor state, so frames after a reset equal a new solver's to the
+  // bit: the contact factor is treated as holding no contacts (it is refactorised before it is
+  // used again) and the low-rank correction and its cached columns are dropped.
+  Factor& f = *factor_;
+  factorised_contacts_.clear();
+  f.use_contacts = false;
+  f.low_rank.clear();
+  for (int k = 0; k < 2; ++k) {
+    f.column_of[k].clear();
+    f.columns[k].clear();
+  }
 }
 
 // Numeric factorisation of K = system + w_c sum over contacts e_i e_i^T (pattern unchanged).

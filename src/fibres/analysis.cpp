@@ -104,7 +104,7 @@ DirectionDeviation compare_directions(const FibreSet& fibres, const FibreSet& tr
       const Vec3 a = P.row(k - 1), b = P.row(k);
       const double len = (b - a).norm();
       const int pieces = fibre_spacing_m > 0.0
-                             ? std::max(1, static_cast<int>(std::ceil(len / fibre_spacing_m)))
+                             ? static_cast<int>(std::clamp(std::ceil(len / fibre_spacing_m), 1.0, 1e6))
                              : 1;
       for (int j = 0; j < pieces; ++j) {
         mids.emplace_back(a + (j + 0.5) / pieces * (b - a));

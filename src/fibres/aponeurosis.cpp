@@ -11,6 +11,7 @@
 #include "fascicle/geometry/mesh_query.hpp"
 
 #include <Eigen/Eigenvalues>
+#include <fmt/format.h>
 
 #include <algorithm>
 #include <cctype>
@@ -140,6 +141,15 @@ Attachments find_aponeurosis_attachments(const TriMesh& muscle, const Aponeurosi
     const MeshQuery query(muscle);
     std::vector<Vec3> pts;
     const double h = o.sheet_spacing_m;
+    // Bound the grid (a mesh read in the wrong units would ask for billions of inside tests).
+    double widest = 0.0;
+    for (std::size_t b = 0; b < r.y_lo.size(); ++b) widest = std::max(widest, r.y_hi[b] - r.y_lo[b]);
+    if ((L - d) / h * (widest / h) > 4e6)
+      throw_bad_input(fmt::format("the central aponeurosis sheet would need more than 4 million samples "
+                                  "({:.3g} m long, {:.3g} m wide, spacing {:.3g} m)",
+                                  L - d, widest, h),
+                      {.suggestion = "check the mesh units (--units mm for millimetre meshes) or raise "
+                                     "the sheet spacing"});
     for (double sv = d; sv <= L; sv += h) {
       const int b = bin_of(sv);
       if (!(r.x_hi[b] > r.x_lo[b])) continue;

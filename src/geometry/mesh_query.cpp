@@ -733,7 +733,9 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
     const Vec3 extent = (hi - lo) + 2.0 * margin;
     const double cells_wanted = std::min(static_cast<double>(kMaxGridCells),
                                          std::max(1.0, kGridCellsPerVertex * num_welded));
-    const double cell = std::cbrt(extent.prod() / cells_wanted);
+    // A mesh collapsed to one point has no extent: one cell of any positive size then serves.
+    const double cell_fit = std::cbrt(extent.prod() / cells_wanted);
+    const double cell = (cell_fit > 0.0 && std::isfinite(cell_fit)) ? cell_fit : 1.0;
     bvh.grid_lo = lo - margin;
     bvh.grid_inv_cell = 1.0 / cell;
     std::size_t cells = 1;

@@ -358,6 +358,13 @@ TEST(FibresFirst, BadInput) {
   Error e = catch_error([&] { build_fibres_first_model({{"floating", fibres, -1, -1}}, bones.list()); });
   EXPECT_EQ(e.kind(), ErrorKind::bad_input);
   EXPECT_NE(std::string(e.what()).find("floating"), std::string::npos) << e.what();
+  // no bone at all, even with an action line to carry the ends along: nothing to move them with
+  FibreBundleSpec boneless{"boneless", fibres, -1, -1};
+  boneless.action_line = Points3(2, 3);
+  boneless.action_line << 0, 0, 0, 0, 0, 0.08;
+  e = catch_error([&] { build_fibres_first_model({boneless}, bones.list()); });
+  EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+  EXPECT_NE(std::string(e.what()).find("boneless"), std::string::npos) << e.what();
   FibresFirstOptions near;
   near.end_attachment_distance_m = 0.001;
   const auto far = make_bundle(Vec3(0, 0, 0.01), Vec3::UnitZ(), Vec3::UnitX(), 0.05, 3, 3, 0.004);

@@ -210,6 +210,25 @@ TEST(MeshQuery, FarAwayAndOffsetMesh) {
   check_against_brute_force(m, 800, 400, 14);
 }
 
+TEST(MeshQuery, MeshCollapsedToOnePoint) {
+  // Every vertex at the origin: no extent for the start-vertex grid, yet queries stay exact.
+  TriMesh m;
+  m.V = Points3::Zero(3, 3);
+  m.F = Triangles(1, 3);
+  m.F << 0, 1, 2;
+  const MeshQuery query(m);
+  for (const Vec3& p : {Vec3(1.0, 0.0, 0.0), Vec3(0.0, -2.0, 3.0), Vec3(0.0, 0.0, 0.0)}) {
+    const ClosestPoint c = query.calc_closest_point(p);
+    EXPECT_EQ(c.triangle, 0);
+    EXPECT_DOUBLE_EQ(c.distance, p.norm());
+  }
+  Points3 P(2, 3);
+  P << 1, 0, 0, 0, 0, 4;
+  const std::vector<ClosestPoint> batch = query.calc_closest_points(P);
+  EXPECT_DOUBLE_EQ(batch[0].distance, 1.0);
+  EXPECT_DOUBLE_EQ(batch[1].distance, 4.0);
+}
+
 TEST(MeshQuery, UnusedVerticesAndDegenerateTrianglesAgainstBruteForce) {
   // The vertex k-d tree that seeds closest-point queries must skip unused vertices, and the plane
   // lower bound must not reject zero-area triangles (no normal): a needle of three collinear
