@@ -52,8 +52,9 @@ VolumeAndGradient calc_boundary_volume_and_gradient(const BSplineSolid& solid);
 // onto its quadrature points, then the other direction is swept with the first one's quadrature
 // points as the contiguous (SIMD) index. Thread-safe (const; scratch memory is per call).
 // On CPUs with AVX2 the sweep runs four points per instruction instead of two (allow_avx2 =
-// false forces the SSE2 kernel); both round every point identically, only the order of the final
-// sums differs (results agree to a few ulps; each is deterministic).
+// false forces the SSE2 kernel); both round every point identically, but each lane accumulates a
+// different subset of points (stride 4 vs 2), so volume and gradient differ by a few ulps between
+// an AVX2 and a non-AVX2 machine (each is deterministic on its machine).
 class BoundaryVolumeIntegrator {
  public:
   explicit BoundaryVolumeIntegrator(const BSplineSolid& lattice, bool allow_avx2 = true);
