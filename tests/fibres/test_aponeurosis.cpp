@@ -28,6 +28,23 @@ double median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
+// 60 harmonic fibres × 12 points in the slab, with aponeurosis areas of the given architecture and
+// the pennate field at angle alpha (thickness along x).
+Decomposition decompose_slab_pennate(Architecture architecture, double alpha) {
+  AponeurosisOptions o;
+  o.architecture = architecture;
+  o.pennation_rad = alpha;
+  o.thickness_direction = Vec3::UnitX();
+  const TriMesh m = make_slab();
+  const Attachments a = find_aponeurosis_attachments(m, o);
+  DecomposeOptions opt;
+  opt.method = FibreMethod::harmonic;
+  opt.count = 60;
+  opt.resolution = 12;
+  opt.harmonic.pennation_rad = alpha;
+  return decompose_muscle(m, a, opt);
+}
+
 }  // namespace
 
 TEST(Aponeurosis, UnipennateAreasAreOffsetStripsOnOppositeFaces) {
@@ -100,18 +117,8 @@ TEST(PennateRise, GivesTheTargetAngle) {
 }
 
 TEST(PennateHarmonicField, FibresRunAtThePennationAngle) {
-  const TriMesh m = make_slab();
   const double alpha = 30.0 * M_PI / 180;
-  AponeurosisOptions o;
-  o.pennation_rad = alpha;
-  o.thickness_direction = Vec3::UnitX();
-  const Attachments a = find_aponeurosis_attachments(m, o);
-  DecomposeOptions opt;
-  opt.method = FibreMethod::harmonic;
-  opt.count = 60;
-  opt.resolution = 12;
-  opt.harmonic.pennation_rad = alpha;
-  const Decomposition d = decompose_muscle(m, a, opt);
+  const Decomposition d = decompose_slab_pennate(Architecture::unipennate, alpha);
   ASSERT_GE(d.fibres.size(), 55u);
   std::vector<double> angles, crossings;
   for (const Points3& P : d.fibres.fibres) {
@@ -132,19 +139,8 @@ TEST(PennateHarmonicField, FibresRunAtThePennationAngle) {
 }
 
 TEST(PennateHarmonicField, InteriorSheetReceivesTheFibres) {
-  const TriMesh m = make_slab();
   const double alpha = 20.0 * M_PI / 180;
-  AponeurosisOptions o;
-  o.architecture = Architecture::bipennate;
-  o.pennation_rad = alpha;
-  o.thickness_direction = Vec3::UnitX();
-  const Attachments a = find_aponeurosis_attachments(m, o);
-  DecomposeOptions opt;
-  opt.method = FibreMethod::harmonic;
-  opt.count = 60;
-  opt.resolution = 12;
-  opt.harmonic.pennation_rad = alpha;
-  const Decomposition d = decompose_muscle(m, a, opt);
+  const Decomposition d = decompose_slab_pennate(Architecture::bipennate, alpha);
   ASSERT_GE(d.fibres.size(), 55u);
   // Fibres start on a face (|x| near the ellipse) and end near the central sheet x = 0.
   std::vector<double> end_x, start_x;

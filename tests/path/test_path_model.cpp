@@ -196,10 +196,8 @@ TEST(PathModel, ConditionalPointActiveInsideItsRange) {
   }
 }
 
-TEST(PathModel, TwoCylindersIterateToConvergence) {
-  // A path over two cylinders in series, on ground and on the arm; the lengths and moment arms of
-  // the converged path agree with finite differences.
-  PinModel pin;
+// A path over two cylinders in series, one on ground and one on the arm, iterated to 1e-13 m.
+PathSetSpec make_two_cylinder_path() {
   PathSetSpec spec;
   for (int k = 0; k < 2; ++k) {
     WrapObjectSpec c;
@@ -220,6 +218,14 @@ TEST(PathModel, TwoCylindersIterateToConvergence) {
   spec.paths.push_back(path);
   spec.options.tolerance_m = 1e-13;
   spec.options.max_iterations = 100;
+  return spec;
+}
+
+TEST(PathModel, TwoCylindersIterateToConvergence) {
+  // A path over two cylinders in series, on ground and on the arm; the lengths and moment arms of
+  // the converged path agree with finite differences.
+  PinModel pin;
+  PathSetSpec spec = make_two_cylinder_path();
   const PathSetModel model = compile_paths(spec, pin.names);
   PathResult res;
   auto length = [&](double q) {
@@ -250,26 +256,7 @@ TEST(PathModel, TwoCylindersIterateToConvergence) {
 // length is that of the converged path (its vertices and arcs).
 TEST(PathModel, OpenSimTangentPointCacheKeepsFirstPassStraightPieces) {
   PinModel pin;
-  PathSetSpec spec;
-  for (int k = 0; k < 2; ++k) {
-    WrapObjectSpec c;
-    c.name = k == 0 ? "c0" : "c1";
-    c.body = k == 0 ? "ground" : "arm";
-    c.shape = WrapShape::cylinder;
-    c.radius = 0.1;
-    c.length = 1.0;
-    c.X_body_wrap.translation() = k == 0 ? Vec3(0.5, 0.0, 0) : Vec3(-0.5, 0.0, 0);
-    c.quadrant = WrapQuadrant::pos_y;
-    spec.wrap_objects.push_back(c);
-  }
-  GeometryPathSpec path;
-  path.name = "m";
-  path.points = {fixed_point("o", "ground", {1.0, -0.05, 0.02}),
-                 fixed_point("i", "arm", {-1.0, -0.05, -0.03})};
-  path.wraps = {{.wrap_object = "c0"}, {.wrap_object = "c1"}};
-  spec.paths.push_back(path);
-  spec.options.tolerance_m = 1e-13;
-  spec.options.max_iterations = 100;
+  PathSetSpec spec = make_two_cylinder_path();
   const PathSetModel consistent = compile_paths(spec, pin.names);
   spec.options.opensim_tangent_point_cache = true;
   const PathSetModel cached = compile_paths(spec, pin.names);
