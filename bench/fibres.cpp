@@ -85,6 +85,22 @@ void BM_HarmonicTrace(benchmark::State& state) {
 BENCHMARK(BM_HarmonicTrace)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
 // Validation: one decomposition per muscle, method and template; counters carry the results.
+// Counters shared by the validation benchmarks: mean fibre length and its ratio to Ward et al.
+// 2009, mean pennation, and (when a tracts file is given) the DTI direction deviation.
+void report_validation(benchmark::State& state, const FibreAnalysis& a, double ward_m,
+                       const std::filesystem::path& tracts_file, const FibreSet& fibres) {
+  state.counters["fibre_len_mm"] = a.mean_fibre_length_m * 1e3;
+  state.counters["ward_ratio"] = a.mean_fibre_length_m / ward_m;
+  state.counters["pennation_deg"] = a.mean_pennation_rad * 180 / M_PI;
+  if (tracts_file.empty()) return;
+  const FibreSet tracts = read_tracts(tracts_file, 1e-3);
+  const DirectionDeviation dev = compare_directions(fibres, tracts);
+  state.counters["dti_mean_deg"] = dev.mean_rad * 180 / M_PI;
+  state.counters["dti_sd_deg"] = dev.stddev_rad * 180 / M_PI;
+  const DirectionDeviation old = compare_directions(fibres, tracts, 0.0);
+  state.counters["dti_old_mean_deg"] = old.mean_rad * 180 / M_PI;
+}
+
 struct ValidationCase {
   const char* name;
   std::string mesh;
@@ -126,19 +142,9 @@ void BM_Validate(benchmark::State& state) {
   Decomposition d;
   for (auto _ : state) d = decompose_muscle(muscle, areas, opt);
   const FibreAnalysis a = analyse_fibres(muscle, areas, d.fibres);
-  state.counters["fibre_len_mm"] = a.mean_fibre_length_m * 1e3;
-  state.counters["ward_ratio"] = a.mean_fibre_length_m / c.ward_m;
-  state.counters["pennation_deg"] = a.mean_pennation_rad * 180 / M_PI;
+  report_validation(state, a, c.ward_m, c.tracts ? data / c.tracts : std::filesystem::path(), d.fibres);
   state.counters["pcsa_cm2"] = a.pcsa_m2 * 1e4;
   state.counters["volume_cm3"] = a.volume_m3 * 1e6;
-  if (c.tracts) {
-    const FibreSet tracts = read_tracts(data / c.tracts, 1e-3);
-    const DirectionDeviation dev = compare_directions(d.fibres, tracts);
-    state.counters["dti_mean_deg"] = dev.mean_rad * 180 / M_PI;
-    state.counters["dti_sd_deg"] = dev.stddev_rad * 180 / M_PI;
-    const DirectionDeviation old = compare_directions(d.fibres, tracts, 0.0);
-    state.counters["dti_old_mean_deg"] = old.mean_rad * 180 / M_PI;
-  }
   state.SetLabel(std::string(c.name) + " " + to_string(d.method_used) + " " + to_string(tmpl));
 }
 BENCHMARK(BM_Validate)
@@ -209,17 +215,7 @@ void BM_ValidateArchitecture(benchmark::State& state) {
   Decomposition d;
   for (auto _ : state) d = decompose_muscle(muscle, used, opt);
   const FibreAnalysis a = analyse_fibres(muscle, used, d.fibres);
-  state.counters["fibre_len_mm"] = a.mean_fibre_length_m * 1e3;
-  state.counters["ward_ratio"] = a.mean_fibre_length_m / c.ward_m;
-  state.counters["pennation_deg"] = a.mean_pennation_rad * 180 / M_PI;
-  if (c.tracts) {
-    const FibreSet tracts = read_tracts(data / c.tracts, 1e-3);
-    const DirectionDeviation dev = compare_directions(d.fibres, tracts);
-    state.counters["dti_mean_deg"] = dev.mean_rad * 180 / M_PI;
-    state.counters["dti_sd_deg"] = dev.stddev_rad * 180 / M_PI;
-    const DirectionDeviation old = compare_directions(d.fibres, tracts, 0.0);
-    state.counters["dti_old_mean_deg"] = old.mean_rad * 180 / M_PI;
-  }
+  report_validation(state, a, c.ward_m, c.tracts ? data / c.tracts : std::filesystem::path(), d.fibres);
   const std::string variant = method == FibreMethod::template_map ? to_string(tmpl)
                               : pennate_field                      ? "pennate-field"
                                                                    : "plain-field";
