@@ -115,17 +115,22 @@ struct ForceVelocity {
   }
 };
 
+// The ground substance at a quadrature point: tendon regions are stiffer by a factor.
+MooneyRivlinParameters get_ground_material(const SolidDynamicsSpec& s, const QuadraturePoint& q) {
+  MooneyRivlinParameters g = s.ground;
+  if (q.tendon) {
+    g.c1_Pa *= s.tendon_stiffness_factor;
+    g.c2_Pa *= s.tendon_stiffness_factor;
+  }
+  return g;
+}
+
 StressAndEnergy calc_material(const SolidDynamicsSpec& s, const QuadraturePoint& q, const Mat3& F,
                               double activation, const ForceVelocity& fvm) {
   StressAndEnergy out;
   const double fv = (activation > 0.0 && !q.tendon) ? fvm.calc(F, q.fibre_rest) : 1.0;
   if (s.hyperelastic) {
-    MooneyRivlinParameters g = s.ground;
-    if (q.tendon) {
-      g.c1_Pa *= s.tendon_stiffness_factor;
-      g.c2_Pa *= s.tendon_stiffness_factor;
-    }
-    out = calc_mooney_rivlin(g, F);
+    out = calc_mooney_rivlin(get_ground_material(s, q), F);
     const StressAndEnergy fib = q.tendon ? calc_tendon_fibre(s.tendon_modulus_Pa, F, q.fibre_rest)
                                          : calc_blemker_fibre(s.fibre, F, q.fibre_rest,
                                                               activation, fv);
@@ -161,12 +166,7 @@ Mat9 calc_material_tangent(const SolidDynamicsSpec& s, const QuadraturePoint& q,
   };
   double phi = 0.0, dphi = 0.0;
   if (s.hyperelastic) {
-    MooneyRivlinParameters g = s.ground;
-    if (q.tendon) {
-      g.c1_Pa *= s.tendon_stiffness_factor;
-      g.c2_Pa *= s.tendon_stiffness_factor;
-    }
-    D = calc_mooney_rivlin_tangent(g, F);
+    D = calc_mooney_rivlin_tangent(get_ground_material(s, q), F);
     if (q.tendon) {
       if (lambda > 1.0) {
         phi = s.tendon_modulus_Pa * (lambda - 1.0);
