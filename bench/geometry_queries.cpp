@@ -11,6 +11,8 @@
 #include <benchmark/benchmark.h>
 
 #include <algorithm>
+#include <cmath>
+#include <cstdint>
 #include <cstdlib>
 #include <filesystem>
 #include <random>
@@ -89,6 +91,61 @@ void BM_Build(benchmark::State& state) {
   state.counters["triangles"] = static_cast<double>(tibia().F.rows());
 }
 BENCHMARK(BM_Build)->Unit(benchmark::kMillisecond);
+
+const TriMesh& soleus() {
+  static const TriMesh mesh = read_mesh(
+      data_dir() / "visible_human_female/right/VHF_Right_Muscle_Soleus_smooth.stl", LengthUnit::millimetre);
+  return mesh;
+}
+
+// The mesh's vertices moved by a smooth deformation (a few mm of twist and bulge), as a muscle
+// deforms between frames.
+Points3 deformed_vertices(const TriMesh& m) {
+  const Vec3 lo = m.V.colwise().minCoeff().transpose(), hi = m.V.colwise().maxCoeff().transpose();
+  const Vec3 c = 0.5 * (lo + hi);
+  const double size = (hi - lo).norm();
+  Points3 W = m.V;
+  for (Eigen::Index i = 0; i < W.rows(); ++i) {
+    const Vec3 x = m.V.row(i).transpose() - c;
+    const double angle = 0.1 * x.z() / size;
+    W(i, 0) = c.x() + (std::cos(angle) * x.x() - std::sin(angle) * x.y()) * (1.0 + 0.05 * std::sin(x.z() / size));
+    W(i, 1) = c.y() + std::sin(angle) * x.x() + std::cos(angle) * x.y();
+    W(i, 2) = c.z() + x.z() * 1.02;
+  }
+  return W;
+}
+
+// Build vs refit (MeshQuery::update_vertices) for the tibia (0) and the VH soleus (1). Refit
+// alternates between the rest and the deformed vertices so every iteration moves every vertex.
+const TriMesh& mesh_of(std::int64_t which) { return which == 0 ? tibia() : soleus(); }
+
+void BM_BuildMesh(benchmark::State& state) {
+  const ThreadLimit one(1);
+  const TriMesh& m = mesh_of(state.range(0));
+  for (auto _ : state) {
+    MeshQuery q(m);
+    benchmark::DoNotOptimize(q);
+  }
+  state.counters["vertices"] = static_cast<double>(m.V.rows());
+  state.counters["triangles"] = static_cast<double>(m.F.rows());
+}
+BENCHMARK(BM_BuildMesh)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
+void BM_RefitMesh(benchmark::State& state) {
+  const ThreadLimit one(1);
+  const TriMesh& m = mesh_of(state.range(0));
+  const Points3 W = deformed_vertices(m);
+  MeshQuery q(m);
+  bool toggle = false;
+  for (auto _ : state) {
+    q.update_vertices(toggle ? m.V : W);
+    toggle = !toggle;
+    benchmark::ClobberMemory();
+  }
+  state.counters["vertices"] = static_cast<double>(m.V.rows());
+  state.counters["triangles"] = static_cast<double>(m.F.rows());
+}
+BENCHMARK(BM_RefitMesh)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
 // Independent single queries in random order (no coherence between consecutive points).
 void BM_ClosestPointSingle(benchmark::State& state) {

@@ -150,6 +150,7 @@ constexpr std::size_t kMaxGridCells = std::size_t{1} << 20;
 struct MeshQuery::Bvh {
   RTCDevice device = nullptr;
   RTCScene scene = nullptr;
+  RTCGeometry geometry = nullptr;  // the clusters (owned by the scene)
   // Triangles are stored in Morton order of their centroids ("slots"), so that triangles near in
   // space are near in memory. Embree primitives are clusters of kCluster consecutive slots: one
   // callback screens the whole cluster with a vectorised lower bound (calc_lower_bounds) and runs
@@ -167,9 +168,11 @@ struct MeshQuery::Bvh {
   double pad = 0.0;
   double scale = 0.0;         // largest |coordinate| + diagonal of the mesh
   Vec3 middle = Vec3::Zero();  // centre of the mesh's bounding box
+  Vec3 box_lo = Vec3::Zero(), box_hi = Vec3::Zero();  // the mesh's bounding box (all vertices)
   // Welded vertices (used mesh vertices, equal positions merged so triangle soups are connected
   // too), numbered by first use in slot order: positions, adjacency and incident slots (CSR).
   std::vector<double> vertex_xyz;        // 3 per welded vertex
+  std::vector<int> welded_source;        // welded vertex -> the mesh vertex giving its position
   std::vector<unsigned> adjacent_start;  // welded vertex i -> adjacent[adjacent_start[i] ...)
   std::vector<unsigned> adjacent;
   std::vector<unsigned> ring_start;      // welded vertex i -> ring_slots[ring_start[i] ...)
@@ -427,7 +430,11 @@ struct RayState {
 };
 
 void intersect_slot(const RTCIntersectFunctionNArguments* args, RayState* r, unsigned t) {
-  const double t_max = r->mode == RayMode::first ? std::min(r->t_max, r->first.t) : r->t_max;
+  // First-hit mode: hits at the current best t are still tested, so that equal t goes to the
+  // lower triangle index whatever the traversal order (a refitted and a fresh tree agree).
+  const double t_max = r->mode == RayMode::first && r->first.triangle >= 0
+                           ? std::min(r->t_max, std::nextafter(r->first.t, std::numeric_limits<double>::infinity()))
+                           : r->t_max;
   bool on_edge = false;
   std::optional<RayHit> hit =
       intersect_ray_triangle(r->origin, r->direction, r->bvh->corner(t, 0), r->bvh->corner(t, 1),
@@ -444,6 +451,7 @@ void intersect_slot(const RTCIntersectFunctionNArguments* args, RayState* r, uns
     r->all->push_back(*hit);
     return;
   }
+  if (r->first.triangle >= 0 && hit->t == r->first.t && hit->triangle > r->first.triangle) return;
   r->first = *hit;
   // Shrink Embree's far distance (rounded up, padded) so farther boxes are culled.
   auto* rayhit = reinterpret_cast<RTCRayHit*>(args->rayhit);
@@ -567,6 +575,127 @@ std::vector<Eigen::Index> spatial_order(const Points3& P) {
 
 }  // namespace
 
+namespace {
+
+// Fills the per-slot data from the mesh's current vertices (slot order already fixed): corners,
+// the clusters' bounding discs, the bounding box, scale, pad and middle. Used by the constructor and
+// by update_vertices (same slots, new positions).
+void fill_slots(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
+  constexpr unsigned K = MeshQuery::Bvh::kCluster;
+  const std::size_t num_clusters = (bvh.num_slots + K - 1) / K;
+  bvh.corners.assign(9 * static_cast<std::size_t>(bvh.num_slots), 0.0);
+  bvh.soa.assign(MeshQuery::Bvh::kSoaRows * K * num_clusters, 0.0);
+  for (std::size_t slot = 0; slot < bvh.num_slots; ++slot) {
+    const Eigen::Index f = bvh.triangle_of[slot];
+    double* c = bvh.corners.data() + 9 * slot;
+    for (int k = 0; k < 3; ++k) {
+      for (int j = 0; j < 3; ++j) c[3 * k + j] = mesh.V(mesh.F(f, k), j);
+    }
+    const Vec3 a = bvh.corner(static_cast<unsigned>(slot), 0), b = bvh.corner(static_cast<unsigned>(slot), 1),
+               cc = bvh.corner(static_cast<unsigned>(slot), 2);
+    const Vec3 centre = (a + b + cc) / 3.0;
+    const double r = std::max({(a - centre).norm(), (b - centre).norm(), (cc - centre).norm()});
+    // The computed normal's direction error is about 1e-16 / sin(angle at a): trust it only when
+    // that angle is not tiny (error < 1e-12), otherwise fall back to the sphere bound (n = 0).
+    Vec3 n = (b - a).cross(cc - a);
+    const double n_len = n.norm();
+    n = n_len > 1e-4 * (b - a).norm() * (cc - a).norm() ? Vec3(n / n_len) : Vec3::Zero();
+    double* block = bvh.soa.data() + MeshQuery::Bvh::kSoaRows * K * (slot / K) + slot % K;
+    block[0 * K] = centre.x();
+    block[1 * K] = centre.y();
+    block[2 * K] = centre.z();
+    block[3 * K] = n.x();
+    block[4 * K] = n.y();
+    block[5 * K] = n.z();
+    block[6 * K] = r * (1.0 + 1e-12);  // rounded up: the bound stays a bound after rounding
+  }
+  bvh.box_lo = mesh.V.colwise().minCoeff().transpose();
+  bvh.box_hi = mesh.V.colwise().maxCoeff().transpose();
+  const double scale = std::max(bvh.box_lo.cwiseAbs().maxCoeff(), bvh.box_hi.cwiseAbs().maxCoeff()) +
+                       (bvh.box_hi - bvh.box_lo).norm();
+  bvh.pad = std::ldexp(std::max(scale, std::numeric_limits<double>::min()), -18);
+  bvh.scale = scale;
+  bvh.middle = 0.5 * (bvh.box_lo + bvh.box_hi);
+}
+
+// Builds the start-vertex grid from the welded vertices' current positions (fill_slots first).
+void build_start_grid(MeshQuery::Bvh& bvh) {
+  const Vec3 lo = bvh.box_lo, hi = bvh.box_hi;
+  const double scale = bvh.scale;
+  const auto num_welded = static_cast<unsigned>(bvh.vertex_xyz.size() / 3);
+  // Start-vertex grid: cubic cells over the bounding box enlarged by 10% of its diagonal. Each
+  // cell holding vertices keeps the one nearest its centre; two raster sweeps (forward with the
+  // -x, -y, -z neighbours, backward with +x, +y, +z) then pass to every cell the nearest-to-centre
+  // of its neighbours' vertices (an approximate nearest-vertex map; any vertex is a valid start).
+  const Vec3 margin = Vec3::Constant(0.1 * (hi - lo).norm() + std::ldexp(scale, -30));
+  const Vec3 extent = (hi - lo) + 2.0 * margin;
+  const double cells_wanted = std::min(static_cast<double>(kMaxGridCells),
+                                       std::max(1.0, kGridCellsPerVertex * num_welded));
+  // A mesh collapsed to one point has no extent: one cell of any positive size then serves.
+  const double cell_fit = std::cbrt(extent.prod() / cells_wanted);
+  const double cell = (cell_fit > 0.0 && std::isfinite(cell_fit)) ? cell_fit : 1.0;
+  bvh.grid_lo = lo - margin;
+  bvh.grid_inv_cell = 1.0 / cell;
+  std::size_t cells = 1;
+  for (int k = 0; k < 3; ++k) {
+    bvh.grid_n[k] = std::clamp(static_cast<int>(std::ceil(extent[k] / cell)), 1, 1 << 10);
+    cells *= static_cast<std::size_t>(bvh.grid_n[k]);
+  }
+  constexpr unsigned kNone = std::numeric_limits<unsigned>::max();
+  bvh.grid_vertex.assign(cells, kNone);
+  const int nx = bvh.grid_n[0], ny = bvh.grid_n[1], nz = bvh.grid_n[2];
+  const auto centre_of = [&](int i, int j, int k) {
+    return Vec3(bvh.grid_lo.x() + (i + 0.5) * cell, bvh.grid_lo.y() + (j + 0.5) * cell,
+                bvh.grid_lo.z() + (k + 0.5) * cell);
+  };
+  const auto cell_index = [&](int i, int j, int k) {
+    return static_cast<std::size_t>(i) + static_cast<std::size_t>(nx) * (static_cast<std::size_t>(j) + static_cast<std::size_t>(ny) * static_cast<std::size_t>(k));
+  };
+  // Offers vertex v to cell (i, j, k): kept if nearer to its centre than the current one.
+  const auto offer = [&](int i, int j, int k, unsigned v) {
+    if (v == kNone) return;
+    unsigned& current = bvh.grid_vertex[cell_index(i, j, k)];
+    const Vec3 c = centre_of(i, j, k);
+    if (current == kNone || bvh.vertex_distance2(v, c) < bvh.vertex_distance2(current, c)) current = v;
+  };
+  for (unsigned v = 0; v < num_welded; ++v) {
+    const Vec3 x(bvh.vertex_xyz[3 * v], bvh.vertex_xyz[3 * v + 1], bvh.vertex_xyz[3 * v + 2]);
+    int ijk[3];
+    for (int k = 0; k < 3; ++k) {
+      ijk[k] = std::clamp(static_cast<int>((x[k] - bvh.grid_lo[k]) / cell), 0, bvh.grid_n[k] - 1);
+    }
+    offer(ijk[0], ijk[1], ijk[2], v);
+  }
+  for (int k = 0; k < nz; ++k) {
+    for (int j = 0; j < ny; ++j) {
+      for (int i = 0; i < nx; ++i) {
+        if (i > 0) offer(i, j, k, bvh.grid_vertex[cell_index(i - 1, j, k)]);
+        if (j > 0) offer(i, j, k, bvh.grid_vertex[cell_index(i, j - 1, k)]);
+        if (k > 0) offer(i, j, k, bvh.grid_vertex[cell_index(i, j, k - 1)]);
+      }
+    }
+  }
+  for (int k = nz - 1; k >= 0; --k) {
+    for (int j = ny - 1; j >= 0; --j) {
+      for (int i = nx - 1; i >= 0; --i) {
+        if (i + 1 < nx) offer(i, j, k, bvh.grid_vertex[cell_index(i + 1, j, k)]);
+        if (j + 1 < ny) offer(i, j, k, bvh.grid_vertex[cell_index(i, j + 1, k)]);
+        if (k + 1 < nz) offer(i, j, k, bvh.grid_vertex[cell_index(i, j, k + 1)]);
+      }
+    }
+  }
+}
+
+// Positions of the welded vertices from the mesh (each welded vertex takes its first mesh vertex).
+void update_welded_positions(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
+  bvh.vertex_xyz.resize(3 * bvh.welded_source.size());
+  for (std::size_t i = 0; i < bvh.welded_source.size(); ++i) {
+    for (int k = 0; k < 3; ++k) bvh.vertex_xyz[3 * i + static_cast<std::size_t>(k)] = mesh.V(bvh.welded_source[i], k);
+  }
+}
+
+}  // namespace
+
 // ---------------------------------------------------------------------------------------------
 // MeshQuery
 // ---------------------------------------------------------------------------------------------
@@ -586,50 +715,20 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
                     {.suggestion = "repair the mesh (fascicle mesh repair) before querying it"});
   }
   Bvh& bvh = *bvh_;
-  constexpr unsigned K = Bvh::kCluster;
   Points3 centroids(nf, 3);
   for (Eigen::Index f = 0; f < nf; ++f) {
     centroids.row(f) = (mesh_.V.row(mesh_.F(f, 0)) + mesh_.V.row(mesh_.F(f, 1)) + mesh_.V.row(mesh_.F(f, 2))) / 3.0;
   }
   const std::vector<Eigen::Index> order = spatial_order(centroids);
   bvh.num_slots = static_cast<unsigned>(nf);
-  const std::size_t num_clusters = (bvh.num_slots + K - 1) / K;
   bvh.triangle_of.resize(static_cast<std::size_t>(nf));
   bvh.slot_of.resize(static_cast<std::size_t>(nf));
-  bvh.corners.assign(9 * static_cast<std::size_t>(nf), 0.0);
-  bvh.soa.assign(Bvh::kSoaRows * K * num_clusters, 0.0);
   for (std::size_t slot = 0; slot < order.size(); ++slot) {
     const Eigen::Index f = order[slot];
     bvh.triangle_of[slot] = static_cast<int>(f);
     bvh.slot_of[static_cast<std::size_t>(f)] = static_cast<int>(slot);
-    double* c = bvh.corners.data() + 9 * slot;
-    for (int k = 0; k < 3; ++k) {
-      for (int j = 0; j < 3; ++j) c[3 * k + j] = mesh_.V(mesh_.F(f, k), j);
-    }
-    const Vec3 a = bvh.corner(static_cast<unsigned>(slot), 0), b = bvh.corner(static_cast<unsigned>(slot), 1),
-               cc = bvh.corner(static_cast<unsigned>(slot), 2);
-    const Vec3 centre = centroids.row(f).transpose();
-    const double r = std::max({(a - centre).norm(), (b - centre).norm(), (cc - centre).norm()});
-    // The computed normal's direction error is about 1e-16 / sin(angle at a): trust it only when
-    // that angle is not tiny (error < 1e-12), otherwise fall back to the sphere bound (n = 0).
-    Vec3 n = (b - a).cross(cc - a);
-    const double n_len = n.norm();
-    n = n_len > 1e-4 * (b - a).norm() * (cc - a).norm() ? Vec3(n / n_len) : Vec3::Zero();
-    double* block = bvh.soa.data() + Bvh::kSoaRows * K * (slot / K) + slot % K;
-    block[0 * K] = centre.x();
-    block[1 * K] = centre.y();
-    block[2 * K] = centre.z();
-    block[3 * K] = n.x();
-    block[4 * K] = n.y();
-    block[5 * K] = n.z();
-    block[6 * K] = r * (1.0 + 1e-12);  // rounded up: the bound stays a bound after rounding
   }
-  const Vec3 lo = mesh_.V.colwise().minCoeff().transpose();
-  const Vec3 hi = mesh_.V.colwise().maxCoeff().transpose();
-  const double scale = std::max(lo.cwiseAbs().maxCoeff(), hi.cwiseAbs().maxCoeff()) + (hi - lo).norm();
-  bvh.pad = std::ldexp(std::max(scale, std::numeric_limits<double>::min()), -18);
-  bvh.scale = scale;
-  bvh.middle = 0.5 * (lo + hi);
+  fill_slots(bvh, mesh_);
 
   // Welded vertices: used vertices with equal coordinates merged, numbered by first use in slot
   // order; their adjacency and incident slots; the start-vertex grid.
@@ -669,7 +768,7 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
     for (std::size_t i = 0; i < used.size(); ++i) {
       weld_of_rank[i] = representative[i] == i ? num_welded++ : weld_of_rank[representative[i]];
       if (representative[i] == i) {
-        for (int k = 0; k < 3; ++k) bvh.vertex_xyz.push_back(mesh_.V(used[i], k));
+        bvh.welded_source.push_back(used[i]);
       }
     }
     std::vector<std::array<unsigned, 3>> welded(bvh.num_slots);  // slot -> its welded corners
@@ -725,75 +824,19 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
     bvh.adjacent_start[num_welded] = out;
     bvh.adjacent.resize(out);
 
-    // Start-vertex grid: cubic cells over the bounding box enlarged by 10% of its diagonal. Each
-    // cell holding vertices keeps the one nearest its centre; two raster sweeps (forward with the
-    // -x, -y, -z neighbours, backward with +x, +y, +z) then pass to every cell the nearest-to-centre
-    // of its neighbours' vertices (an approximate nearest-vertex map; any vertex is a valid start).
-    const Vec3 margin = Vec3::Constant(0.1 * (hi - lo).norm() + std::ldexp(scale, -30));
-    const Vec3 extent = (hi - lo) + 2.0 * margin;
-    const double cells_wanted = std::min(static_cast<double>(kMaxGridCells),
-                                         std::max(1.0, kGridCellsPerVertex * num_welded));
-    // A mesh collapsed to one point has no extent: one cell of any positive size then serves.
-    const double cell_fit = std::cbrt(extent.prod() / cells_wanted);
-    const double cell = (cell_fit > 0.0 && std::isfinite(cell_fit)) ? cell_fit : 1.0;
-    bvh.grid_lo = lo - margin;
-    bvh.grid_inv_cell = 1.0 / cell;
-    std::size_t cells = 1;
-    for (int k = 0; k < 3; ++k) {
-      bvh.grid_n[k] = std::clamp(static_cast<int>(std::ceil(extent[k] / cell)), 1, 1 << 10);
-      cells *= static_cast<std::size_t>(bvh.grid_n[k]);
-    }
-    constexpr unsigned kNone = std::numeric_limits<unsigned>::max();
-    bvh.grid_vertex.assign(cells, kNone);
-    const int nx = bvh.grid_n[0], ny = bvh.grid_n[1], nz = bvh.grid_n[2];
-    const auto centre_of = [&](int i, int j, int k) {
-      return Vec3(bvh.grid_lo.x() + (i + 0.5) * cell, bvh.grid_lo.y() + (j + 0.5) * cell,
-                  bvh.grid_lo.z() + (k + 0.5) * cell);
-    };
-    const auto cell_index = [&](int i, int j, int k) {
-      return static_cast<std::size_t>(i) + static_cast<std::size_t>(nx) * (static_cast<std::size_t>(j) + static_cast<std::size_t>(ny) * static_cast<std::size_t>(k));
-    };
-    // Offers vertex v to cell (i, j, k): kept if nearer to its centre than the current one.
-    const auto offer = [&](int i, int j, int k, unsigned v) {
-      if (v == kNone) return;
-      unsigned& current = bvh.grid_vertex[cell_index(i, j, k)];
-      const Vec3 c = centre_of(i, j, k);
-      if (current == kNone || bvh.vertex_distance2(v, c) < bvh.vertex_distance2(current, c)) current = v;
-    };
-    for (unsigned v = 0; v < num_welded; ++v) {
-      const Vec3 x(bvh.vertex_xyz[3 * v], bvh.vertex_xyz[3 * v + 1], bvh.vertex_xyz[3 * v + 2]);
-      int ijk[3];
-      for (int k = 0; k < 3; ++k) {
-        ijk[k] = std::clamp(static_cast<int>((x[k] - bvh.grid_lo[k]) / cell), 0, bvh.grid_n[k] - 1);
-      }
-      offer(ijk[0], ijk[1], ijk[2], v);
-    }
-    for (int k = 0; k < nz; ++k) {
-      for (int j = 0; j < ny; ++j) {
-        for (int i = 0; i < nx; ++i) {
-          if (i > 0) offer(i, j, k, bvh.grid_vertex[cell_index(i - 1, j, k)]);
-          if (j > 0) offer(i, j, k, bvh.grid_vertex[cell_index(i, j - 1, k)]);
-          if (k > 0) offer(i, j, k, bvh.grid_vertex[cell_index(i, j, k - 1)]);
-        }
-      }
-    }
-    for (int k = nz - 1; k >= 0; --k) {
-      for (int j = ny - 1; j >= 0; --j) {
-        for (int i = nx - 1; i >= 0; --i) {
-          if (i + 1 < nx) offer(i, j, k, bvh.grid_vertex[cell_index(i + 1, j, k)]);
-          if (j + 1 < ny) offer(i, j, k, bvh.grid_vertex[cell_index(i, j + 1, k)]);
-          if (k + 1 < nz) offer(i, j, k, bvh.grid_vertex[cell_index(i, j, k + 1)]);
-        }
-      }
-    }
   }
+  update_welded_positions(bvh, mesh_);
+  build_start_grid(bvh);
 
   bvh.device = rtcNewDevice(nullptr);
   if (bvh.device == nullptr) throw_internal("Embree: cannot create a device");
   bvh.scene = rtcNewScene(bvh.device);
   rtcSetSceneFlags(bvh.scene, RTC_SCENE_FLAG_ROBUST);
-  rtcSetSceneBuildQuality(bvh.scene, RTC_BUILD_QUALITY_HIGH);
+  // A two-level scene (LOW) is what lets Embree honour the geometry's REFIT quality: the first
+  // commit builds an SAH tree, later commits (update_vertices) refit its boxes.
+  rtcSetSceneBuildQuality(bvh.scene, RTC_BUILD_QUALITY_LOW);
   RTCGeometry geom = rtcNewGeometry(bvh.device, RTC_GEOMETRY_TYPE_USER);
+  rtcSetGeometryBuildQuality(geom, RTC_BUILD_QUALITY_REFIT);
   rtcSetGeometryUserPrimitiveCount(geom, (bvh.num_slots + Bvh::kCluster - 1) / Bvh::kCluster);
   rtcSetGeometryUserData(geom, &bvh);
   rtcSetGeometryBoundsFunction(geom, bounds_callback, nullptr);
@@ -802,9 +845,36 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
   rtcCommitGeometry(geom);
   rtcAttachGeometry(bvh.scene, geom);
   rtcReleaseGeometry(geom);
+  bvh.geometry = geom;
   rtcCommitScene(bvh.scene);
   if (const RTCError err = rtcGetDeviceError(bvh.device); err != RTC_ERROR_NONE) {
     throw_internal("Embree failed to build the BVH (error code " +
+                   std::to_string(static_cast<int>(err)) + ")");
+  }
+}
+
+void MeshQuery::update_vertices(const Points3& V) {
+  if (V.rows() != mesh_.V.rows()) {
+    throw_bad_input("MeshQuery::update_vertices got " + std::to_string(V.rows()) +
+                        " vertices for a mesh of " + std::to_string(mesh_.V.rows()),
+                    {.suggestion = "pass the deformed positions of the same mesh (same vertex count and "
+                                   "triangles); for a different mesh build a new MeshQuery"});
+  }
+  if (!V.allFinite()) {
+    throw_bad_input("MeshQuery::update_vertices got non-finite (NaN or Inf) vertex coordinates",
+                    {.suggestion = "check the deformed mesh for NaN or Inf before updating the query"});
+  }
+  Bvh& bvh = *bvh_;
+  mesh_.V = V;
+  // Same slots (Morton order of the original centroids), same clusters, same welded-vertex graph:
+  // only positions change. The clusters' boxes are refitted by Embree from the bounds callback.
+  fill_slots(bvh, mesh_);
+  update_welded_positions(bvh, mesh_);
+  build_start_grid(bvh);
+  rtcCommitGeometry(bvh.geometry);
+  rtcCommitScene(bvh.scene);
+  if (const RTCError err = rtcGetDeviceError(bvh.device); err != RTC_ERROR_NONE) {
+    throw_internal("Embree failed to refit the BVH (error code " +
                    std::to_string(static_cast<int>(err)) + ")");
   }
 }

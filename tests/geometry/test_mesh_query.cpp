@@ -16,6 +16,7 @@
 #include <fstream>
 #include <numbers>
 #include <random>
+#include <type_traits>
 
 namespace fascicle {
 namespace {
@@ -500,6 +501,138 @@ TEST(MeshQuery, VisibleHumanTibiaAgainstBruteForce) {
     ASSERT_EQ(batch[static_cast<std::size_t>(i)].triangle, bf.triangle) << "point " << i;
     ASSERT_NEAR(one.distance, bf.distance, 1e-12 * bf.distance) << "point " << i;
   }
+}
+
+
+// A smooth, large deformation: twist about z, bulge in x, shear in y (moves every vertex).
+Points3 deform(const Points3& V, double amount) {
+  Points3 W = V;
+  const Vec3 lo = V.colwise().minCoeff().transpose(), hi = V.colwise().maxCoeff().transpose();
+  const Vec3 c = 0.5 * (lo + hi);
+  const double size = (hi - lo).norm();
+  for (Eigen::Index i = 0; i < V.rows(); ++i) {
+    const Vec3 x = V.row(i).transpose() - c;
+    const double angle = amount * 2.0 * x.z() / size;
+    const double cs = std::cos(angle), sn = std::sin(angle);
+    Vec3 y(cs * x.x() - sn * x.y(), sn * x.x() + cs * x.y(), x.z());
+    y.x() *= 1.0 + 0.3 * amount * std::sin(3.0 * x.z() / size);
+    y.y() += 0.2 * amount * x.z();
+    W.row(i) = (y + c + Vec3(0.01, -0.02, 0.03) * amount * size).transpose();
+  }
+  return W;
+}
+
+// Every query of `updated` equals a MeshQuery built on the same vertices, bit for bit, and the
+// closest points equal the exhaustive search.
+void expect_same_as_fresh(const MeshQuery& updated, const TriMesh& deformed, int n_box, int n_near,
+                          int n_brute, std::uint64_t seed) {
+  const MeshQuery fresh(deformed);
+  ASSERT_EQ(updated.get_mesh().V, deformed.V);
+  const Points3 P = sample_points(deformed, n_box, n_near, seed);
+  const std::vector<ClosestPoint> a = updated.calc_closest_points(P), b = fresh.calc_closest_points(P);
+  const VecX sa = updated.calc_signed_distances(P), sb = fresh.calc_signed_distances(P);
+  const InsideFlags ia = updated.calc_is_inside(P), ib = fresh.calc_is_inside(P);
+  std::mt19937_64 rng(seed + 1);
+  std::normal_distribution<double> g(0.0, 1.0);
+  for (Eigen::Index i = 0; i < P.rows(); ++i) {
+    const Vec3 p = P.row(i).transpose();
+    const auto k = static_cast<std::size_t>(i);
+    const ClosestPoint one = updated.calc_closest_point(p), ref = fresh.calc_closest_point(p);
+    ASSERT_EQ(one.triangle, ref.triangle) << "point " << i;
+    ASSERT_EQ(one.distance, ref.distance) << "point " << i;
+    ASSERT_EQ(one.point, ref.point) << "point " << i;
+    ASSERT_EQ(one.barycentric, ref.barycentric) << "point " << i;
+    ASSERT_EQ(a[k].triangle, b[k].triangle) << "point " << i;
+    ASSERT_EQ(a[k].distance, b[k].distance) << "point " << i;
+    ASSERT_EQ(sa[i], sb[i]) << "point " << i;
+    ASSERT_EQ(ia[i], ib[i]) << "point " << i;
+    ASSERT_EQ(updated.calc_is_inside(p), fresh.calc_is_inside(p)) << "point " << i;
+    ASSERT_EQ(updated.calc_signed_distance(p), fresh.calc_signed_distance(p)) << "point " << i;
+    const Vec3 d(g(rng), g(rng), g(rng));
+    const std::optional<RayHit> ra = updated.cast_ray(p, d), rb = fresh.cast_ray(p, d);
+    ASSERT_EQ(ra.has_value(), rb.has_value()) << "ray " << i;
+    if (ra) {
+      ASSERT_EQ(ra->t, rb->t) << "ray " << i;
+      ASSERT_EQ(ra->triangle, rb->triangle) << "ray " << i;
+      ASSERT_EQ(ra->barycentric, rb->barycentric) << "ray " << i;
+    }
+    const std::vector<RayHit> all_a = updated.cast_ray_all(p, d), all_b = fresh.cast_ray_all(p, d);
+    ASSERT_EQ(all_a.size(), all_b.size()) << "ray " << i;
+    for (std::size_t h = 0; h < all_a.size(); ++h) {
+      ASSERT_EQ(all_a[h].t, all_b[h].t);
+      ASSERT_EQ(all_a[h].triangle, all_b[h].triangle);
+    }
+    if (i < n_brute) {
+      // Exhaustive search with MeshQuery's rule: smallest squared distance, then lowest index.
+      ClosestPoint bf;
+      double bf_d2 = std::numeric_limits<double>::infinity();
+      for (Eigen::Index f = 0; f < deformed.F.rows(); ++f) {
+        const TrianglePoint tp = closest_point_on_triangle(p, vertex(deformed, f, 0),
+                                                           vertex(deformed, f, 1), vertex(deformed, f, 2));
+        const double d2 = (p - tp.point).squaredNorm();
+        if (d2 < bf_d2) {
+          bf_d2 = d2;
+          bf.triangle = static_cast<int>(f);
+          bf.distance = std::sqrt(d2);
+        }
+      }
+      ASSERT_EQ(one.triangle, bf.triangle) << "point " << i;
+      ASSERT_NEAR(one.distance, bf.distance, 1e-12 * bf.distance) << "point " << i;
+      const std::vector<RayHit> bh = brute_hits(deformed, p, d);
+      ASSERT_EQ(all_a.size(), bh.size()) << "ray " << i;
+      if (!bh.empty()) {
+        ASSERT_EQ(ra->t, bh.front().t);
+        ASSERT_EQ(ra->triangle, bh.front().triangle);
+      }
+    }
+  }
+}
+
+TEST(MeshQuery, UpdateVerticesEqualsFreshBuild) {
+  static_assert(std::is_nothrow_move_constructible_v<MeshQuery>);
+  const TriMesh rest = make_ellipsoid(Vec3(0.03, 0.02, 0.12), 4);
+  MeshQuery query(rest);
+  // Several frames of growing deformation, then back to rest.
+  for (const double amount : {0.1, 0.5, 1.0, 0.0}) {
+    TriMesh deformed = rest;
+    deformed.V = deform(rest.V, amount);
+    query.update_vertices(deformed.V);
+    expect_same_as_fresh(query, deformed, 300, 300, 200, 7 + static_cast<std::uint64_t>(10 * amount));
+  }
+  // A moved-from-and-into query keeps working.
+  TriMesh deformed = rest;
+  deformed.V = deform(rest.V, 0.7);
+  query.update_vertices(deformed.V);
+  const MeshQuery moved(std::move(query));
+  expect_same_as_fresh(moved, deformed, 100, 100, 50, 99);
+}
+
+TEST(MeshQuery, UpdateVerticesRejectsADifferentMesh) {
+  const TriMesh rest = make_icosphere(0.05, 2);
+  MeshQuery query(rest);
+  Points3 fewer = rest.V.topRows(rest.V.rows() - 1);
+  try {
+    query.update_vertices(fewer);
+    FAIL() << "a different vertex count was accepted";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+    EXPECT_NE(std::string(e.what()).find("vertices for a mesh of"), std::string::npos) << e.what();
+  }
+  Points3 bad = rest.V;
+  bad(3, 1) = std::numeric_limits<double>::infinity();
+  EXPECT_THROW(query.update_vertices(bad), Error);
+  // The query is unchanged after the rejected updates.
+  expect_same_as_fresh(query, rest, 100, 100, 50, 5);
+}
+
+TEST(MeshQuery, UpdateVerticesOnTheVisibleHumanTibia) {
+  const TriMesh tibia =
+      read_binary_stl_mm(test::data_path("visible_human_female/right/VHF_Right_Bone_Tibia_smooth.stl"));
+  MeshQuery query(tibia);
+  TriMesh deformed = tibia;
+  deformed.V = deform(tibia.V, 0.3);
+  query.update_vertices(deformed.V);
+  expect_same_as_fresh(query, deformed, 150, 150, 40, 43);
 }
 
 }  // namespace

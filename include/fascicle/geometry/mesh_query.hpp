@@ -80,6 +80,14 @@ class MeshQuery {
 
   const TriMesh& get_mesh() const { return mesh_; }
 
+  // New vertex positions for the same mesh (same vertex count, same triangles), e.g. a deforming
+  // muscle between frames. Refits the BVH (Embree's REFIT build) and updates every auxiliary
+  // structure instead of rebuilding: all queries afterwards return exactly what a MeshQuery built
+  // on the deformed mesh returns (the exhaustive answer), only the culling may be a little less
+  // tight when the deformation is large. Throws fascicle::Error (bad input) on a different vertex
+  // count or non-finite coordinates (the query is then unchanged). Not thread-safe with queries.
+  void update_vertices(const Points3& V);
+
   // Closest point on the surface; if nothing lies within max_distance, triangle = -1.
   ClosestPoint calc_closest_point(
       const Vec3& p, double max_distance = std::numeric_limits<double>::infinity()) const;
