@@ -6,6 +6,8 @@
 
 #include <benchmark/benchmark.h>
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <string>
 
@@ -181,6 +183,10 @@ const ArchitectureCase architecture_cases[] = {
      "bolsterlee_dti/tracts_MG.txt", nullptr},
     {"bolsterlee_TA", "bolsterlee_dti/TA.stl", Architecture::bipennate, 9.6, 0.0683,
      "bolsterlee_dti/tracts_TA.txt", "bolsterlee_dti/TA_apo.stl"},
+    // The posterior soleus, the largest part of the muscle, is unipennate between the anterior
+    // and posterior aponeuroses (Agur et al. 2003, Clin Anat 16:285); docs/fibres.md.
+    {"soleus_posterior", vh + "Muscle_Soleus_smooth.stl", Architecture::unipennate, 28.3, 0.0440,
+     nullptr, nullptr},
 };
 
 void BM_ValidateArchitecture(benchmark::State& state) {
@@ -223,11 +229,152 @@ void BM_ValidateArchitecture(benchmark::State& state) {
                  to_string(c.architecture));
 }
 BENCHMARK(BM_ValidateArchitecture)
-    ->ArgsProduct({benchmark::CreateDenseRange(0, 6, 1), {0}, {0, 1, 2}})
+    ->ArgsProduct({benchmark::CreateDenseRange(0, 7, 1), {0}, {0, 1, 2}})
     ->Iterations(1)
     ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ValidateArchitecture)
-    ->ArgsProduct({benchmark::CreateDenseRange(0, 6, 1), {1}, {0, 1}})
+    ->ArgsProduct({benchmark::CreateDenseRange(0, 7, 1), {1}, {0, 1}})
+    ->Iterations(1)
+    ->Unit(benchmark::kMillisecond);
+
+// Mean angle (deg) between each template fibre's chord (first to last point) and the box's z axis
+// (the line of action): the pennation the mapped fibres make, to compare with the target.
+double calc_chord_angle_deg(const FibreSet& fibres, const Vec3& axis) {
+  double sum = 0.0;
+  for (const Points3& P : fibres.fibres) {
+    const Vec3 chord = P.row(P.rows() - 1) - P.row(0);
+    sum += std::acos(std::min(1.0, std::abs(chord.normalized().dot(axis))));
+  }
+  return sum / static_cast<double>(fibres.size()) * 180 / M_PI;
+}
+
+// The pennation-derived rise with either crossing rule (argument 2: 0 mean thickness, the default;
+// 1 mapped crossing): fibre length vs Ward and the pennation the fibres actually make.
+void BM_ValidateRiseRule(benchmark::State& state) {
+  const ArchitectureCase& c = architecture_cases[state.range(0)];
+  const auto tmpl = static_cast<FibreTemplate>(state.range(1));
+  const bool mapped = state.range(2) == 1;
+  const TriMesh muscle = read_mesh(data / c.mesh, LengthUnit::millimetre);
+  DecomposeOptions opt;
+  opt.fibre_template = tmpl;
+  opt.count = 100;
+  opt.resolution = 16;
+  opt.pennation_rad = c.pennation_deg * M_PI / 180;
+  opt.rise_crossing = mapped ? DecomposeOptions::RiseCrossing::mapped_crossing
+                             : DecomposeOptions::RiseCrossing::mean_thickness;
+  if (c.aponeurosis)
+    opt.mapping.thickness_direction =
+        calc_sheet_normal(read_mesh(data / c.aponeurosis, LengthUnit::millimetre));
+  const Attachments areas = find_end_attachments(muscle);
+  Decomposition d;
+  for (auto _ : state) d = decompose_muscle(muscle, areas, opt);
+  const TemplateMapper mapper(muscle, areas, opt.mapping);
+  const FibreAnalysis a = analyse_fibres(muscle, areas, d.fibres);
+  report_validation(state, a, c.ward_m, c.tracts ? data / c.tracts : std::filesystem::path(), d.fibres);
+  state.counters["target_deg"] = c.pennation_deg;
+  state.counters["chord_angle_deg"] =
+      calc_chord_angle_deg(d.fibres, mapper.get_box_frame().linear().col(2));
+  state.counters["thickness_mm"] = mapper.get_mean_thickness() * 1e3;
+  state.counters["crossing_mm"] = mapper.get_mean_crossing() * 1e3;
+  state.SetLabel(std::string(c.name) + " " + to_string(tmpl) +
+                 (mapped ? " mapped-crossing" : " mean-thickness"));
+}
+BENCHMARK(BM_ValidateRiseRule)
+    ->ArgsProduct({benchmark::CreateDenseRange(0, 6, 1), {1, 2}, {0, 1}})
+    ->Iterations(1)
+    ->Unit(benchmark::kMillisecond);
+
+// Face thickness (calc_face_thickness, the perpendicular distance a pennate fibre crosses) and
+// the fibre length it implies with Ward's angle, t / sin(alpha) (t / (2 sin alpha) bipennate):
+// the geometric consistency of Ward's (length, angle) pair with each image.
+void BM_ThicknessConsistency(benchmark::State& state) {
+  const ArchitectureCase& c = architecture_cases[state.range(0)];
+  const TriMesh muscle = read_mesh(data / c.mesh, LengthUnit::millimetre);
+  AponeurosisOptions ao;
+  if (c.aponeurosis)
+    ao.thickness_direction = calc_sheet_normal(read_mesh(data / c.aponeurosis, LengthUnit::millimetre));
+  double t = 0.0;
+  for (auto _ : state) t = calc_face_thickness(muscle, ao);
+  const double crossing = c.architecture == Architecture::bipennate ? 0.5 * t : t;
+  const double alpha = c.pennation_deg * M_PI / 180;
+  state.counters["face_thickness_mm"] = t * 1e3;
+  state.counters["implied_len_mm"] = crossing / std::sin(alpha) * 1e3;
+  state.counters["implied_ratio"] = crossing / std::sin(alpha) / c.ward_m;
+  // The crossing Ward's pair implies: L sin(alpha).
+  state.counters["ward_crossing_mm"] = c.ward_m * std::sin(alpha) * 1e3;
+  state.SetLabel(std::string(c.name) + " " + to_string(c.architecture));
+}
+BENCHMARK(BM_ThicknessConsistency)
+    ->DenseRange(0, 7, 1)
+    ->Iterations(1)
+    ->Unit(benchmark::kMillisecond);
+
+// DTI with the pennation angle from the MRI muscle's own face thickness and Ward's fibre length,
+// alpha = asin(t_f / L_Ward) (t_f = t unipennate, t/2 bipennate): independent of the tracts (not
+// fitted to them); not usable for the Ward length check, which it would make circular.
+// Also the mean angle per fifth of the tract segments along the principal axis (proximal first).
+void BM_DtiThicknessPennation(benchmark::State& state) {
+  const ArchitectureCase& c = architecture_cases[state.range(0)];
+  const bool harmonic = state.range(1) == 1;
+  const TriMesh muscle = read_mesh(data / c.mesh, LengthUnit::millimetre);
+  AponeurosisOptions ao;
+  ao.architecture = c.architecture;
+  TriMesh apo;
+  if (c.aponeurosis) {
+    apo = read_mesh(data / c.aponeurosis, LengthUnit::millimetre);
+    ao.thickness_direction = calc_sheet_normal(apo);
+  }
+  const double t = calc_face_thickness(muscle, ao);
+  const double crossing = c.architecture == Architecture::bipennate ? 0.5 * t : t;
+  const double alpha = std::asin(std::min(1.0, crossing / c.ward_m));
+  ao.pennation_rad = alpha;
+  DecomposeOptions opt;
+  opt.method = harmonic ? FibreMethod::harmonic : FibreMethod::template_map;
+  opt.fibre_template = FibreTemplate::pennate;
+  opt.count = 100;
+  opt.resolution = 16;
+  opt.pennation_rad = alpha;
+  opt.mapping.thickness_direction = ao.thickness_direction;
+  Attachments areas;
+  if (harmonic) {
+    areas = find_aponeurosis_attachments(muscle, ao);
+    if (c.aponeurosis) set_interior_aponeurosis(muscle, apo, areas);
+    opt.harmonic.pennation_rad = alpha;
+  } else {
+    areas = find_end_attachments(muscle);
+  }
+  Decomposition d;
+  for (auto _ : state) d = decompose_muscle(muscle, areas, opt);
+  const FibreSet tracts = read_tracts(data / c.tracts, 1e-3);
+  const DirectionDeviation dev = compare_directions(d.fibres, tracts);
+  state.counters["face_thickness_mm"] = t * 1e3;
+  state.counters["alpha_deg"] = alpha * 180 / M_PI;
+  state.counters["dti_mean_deg"] = dev.mean_rad * 180 / M_PI;
+  state.counters["dti_sd_deg"] = dev.stddev_rad * 180 / M_PI;
+  double len = 0.0;
+  for (const Points3& P : d.fibres.fibres) len += calc_polyline_length(P);
+  state.counters["fibre_len_mm"] = len / static_cast<double>(d.fibres.size()) * 1e3;
+  // Per fifth along the principal axis: tract segments as two-point polylines.
+  const Vec3 ez = calc_principal_axis(muscle);
+  const VecX z = muscle.V * ez;
+  const double z_hi = z.maxCoeff(), extent = z_hi - z.minCoeff();
+  FibreSet part[5];
+  for (const Points3& T : tracts.fibres)
+    for (Eigen::Index k = 1; k < T.rows(); ++k) {
+      const Vec3 mid = 0.5 * (T.row(k) + T.row(k - 1));
+      const int b = std::clamp(static_cast<int>((z_hi - mid.dot(ez)) / extent * 5), 0, 4);
+      part[b].fibres.push_back(T.middleRows(k - 1, 2));
+    }
+  for (int b = 0; b < 5; ++b) {
+    const std::string key = "dti_fifth" + std::to_string(b + 1);
+    state.counters[key + "_deg"] =
+        part[b].size() ? compare_directions(d.fibres, part[b]).mean_rad * 180 / M_PI : -1.0;
+    state.counters[key + "_n"] = static_cast<double>(part[b].size());
+  }
+  state.SetLabel(std::string(c.name) + (harmonic ? " pennate-field" : " template pennate"));
+}
+BENCHMARK(BM_DtiThicknessPennation)
+    ->ArgsProduct({{5, 6}, {0, 1}})
     ->Iterations(1)
     ->Unit(benchmark::kMillisecond);
 

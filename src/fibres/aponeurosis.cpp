@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <utility>
 
 namespace fascicle {
 
@@ -49,6 +50,27 @@ Points3 calc_vertex_normals(const TriMesh& m) {
   return N;
 }
 
+// Box axes of the aponeurosis rule: z the principal axis (origin end towards o.origin_towards),
+// x the thickness direction (given, or the least variance of the vertices across z).
+std::pair<Vec3, Vec3> calc_box_axes(const TriMesh& muscle, const AponeurosisOptions& o) {
+  const Vec3 ez = calc_principal_axis(muscle, o.origin_towards);
+  Vec3 ex;
+  if (o.thickness_direction.norm() > 0.0) {
+    ex = o.thickness_direction - o.thickness_direction.dot(ez) * ez;
+    if (!(ex.norm() > 1e-6 * o.thickness_direction.norm()))
+      throw_usage("the thickness direction is parallel to the muscle's principal axis");
+    ex.normalize();
+  } else {
+    const Vec3 mean = muscle.V.colwise().mean();
+    Points3 D = muscle.V.rowwise() - mean.transpose();
+    D -= (D * ez) * ez.transpose();
+    const Eigen::SelfAdjointEigenSolver<Mat3> eig(D.transpose() * D);
+    ex = eig.eigenvectors().col(1);  // col(0) is ~ez (zero variance after projection)
+    ex = (ex - ex.dot(ez) * ez).normalized();
+  }
+  return {ez, ex};
+}
+
 // Per axial bin: the range of x (box thickness coordinate) and of y of the vertices.
 struct BinRanges {
   std::vector<double> x_lo, x_hi, y_lo, y_hi;
@@ -64,21 +86,7 @@ Attachments find_aponeurosis_attachments(const TriMesh& muscle, const Aponeurosi
     throw_usage("the end-region fraction must be in (0, 0.5)");
   if (!(o.sheet_spacing_m > 0.0)) throw_usage("the sheet spacing must be positive");
   // Box: z principal axis, x thickness (least variance across z), y = z x x.
-  const Vec3 ez = calc_principal_axis(muscle, o.origin_towards);
-  const Vec3 mean = muscle.V.colwise().mean();
-  Vec3 ex;
-  if (o.thickness_direction.norm() > 0.0) {
-    ex = o.thickness_direction - o.thickness_direction.dot(ez) * ez;
-    if (!(ex.norm() > 1e-6 * o.thickness_direction.norm()))
-      throw_usage("the thickness direction is parallel to the muscle's principal axis");
-    ex.normalize();
-  } else {
-    Points3 D = muscle.V.rowwise() - mean.transpose();
-    D -= (D * ez) * ez.transpose();
-    const Eigen::SelfAdjointEigenSolver<Mat3> eig(D.transpose() * D);
-    ex = eig.eigenvectors().col(1);  // col(0) is ~ez (zero variance after projection)
-    ex = (ex - ex.dot(ez) * ez).normalized();
-  }
+  const auto [ez, ex] = calc_box_axes(muscle, o);
   const Vec3 ey = ez.cross(ex);
   // Axial position s from the origin end (the +ez end) and the box coordinates.
   const VecX z = muscle.V * ez;
@@ -165,6 +173,31 @@ Attachments find_aponeurosis_attachments(const TriMesh& muscle, const Aponeurosi
   }
   check_attachments(muscle, a);
   return a;
+}
+
+double calc_face_thickness(const TriMesh& muscle, const AponeurosisOptions& o) {
+  const auto [ez, ex] = calc_box_axes(muscle, o);
+  const VecX z = muscle.V * ez;
+  const double z_hi = z.maxCoeff(), L = z_hi - z.minCoeff();
+  if (!(L > 0.0)) throw_bad_input("the muscle mesh has no extent along its principal axis");
+  const Points3 N = calc_vertex_normals(muscle);
+  const double c = std::cos(o.face_angle_rad);
+  const MeshQuery query(muscle);
+  std::vector<double> t;
+  for (Eigen::Index v = 0; v < muscle.num_vertices(); ++v) {
+    const double s = (z_hi - z(v)) / L;
+    const Vec3 n = N.row(v);
+    if (s < 0.1 || s > 0.9 || std::abs(n.dot(ex)) < c) continue;
+    // Start a hair inside so the ray does not hit the vertex's own faces.
+    const double eps = 1e-6 * L;
+    if (const auto hit = query.cast_ray(Vec3(muscle.V.row(v)) - eps * n, -n, 0.0))
+      t.push_back(hit->t + eps);
+  }
+  if (t.empty())
+    throw_bad_input("no muscle surface faces the thickness direction",
+                    {.suggestion = "give the thickness direction (e.g. an aponeurosis normal)"});
+  std::nth_element(t.begin(), t.begin() + t.size() / 2, t.end());
+  return t[t.size() / 2];
 }
 
 Vec3 calc_sheet_normal(const TriMesh& sheet) {

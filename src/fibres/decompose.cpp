@@ -31,7 +31,11 @@ Decomposition decompose_muscle(const TriMesh& muscle, const Attachments& areas,
     if (mapper.is_mappable()) {
       const double rise =
           options.pennation_rad > 0.0
-              ? calc_pennate_rise(options.pennation_rad, mapper.get_mean_thickness(),
+              ? calc_pennate_rise(options.pennation_rad,
+                                  options.rise_crossing ==
+                                          DecomposeOptions::RiseCrossing::mapped_crossing
+                                      ? mapper.get_mean_crossing()
+                                      : mapper.get_mean_thickness(),
                                   mapper.get_axial_length())
               : default_pennate_rise;
       const FibreSet unit =

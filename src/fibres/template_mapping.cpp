@@ -209,6 +209,23 @@ TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
       const double width = out_xy.col(1).maxCoeff() - out_xy.col(1).minCoeff();
       if (width > 0.0) mean_thickness_ += 0.5 * std::abs(area2) / width / K;
     }
+    {
+      // Crossing: the mapped square boundary points (0, y) and (1, y) are the contour points at
+      // perimeter parameters 3 + (1 - y) and 1 + y (counter-clockwise from (0,0), q per side).
+      const auto at = [&](double t) {
+        const double idx = t * q;
+        const int i0 = static_cast<int>(std::floor(idx)) % slices_->samples;
+        const int i1 = (i0 + 1) % slices_->samples;
+        const double w = idx - std::floor(idx);
+        return Vec3((1 - w) * out.row(i0) + w * out.row(i1));
+      };
+      double crossing = 0.0;
+      for (int j = 1; j <= 9; ++j) {
+        const double y = 0.1 * j;
+        crossing += (at(1.0 + y) - at(3.0 + (1.0 - y))).norm() / 9.0;
+      }
+      mean_crossing_ += crossing / K;
+    }
     slices_->contour.push_back(std::move(out));
     slices_->contour_xy.push_back(std::move(out_xy));
   }

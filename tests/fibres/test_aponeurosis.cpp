@@ -4,6 +4,7 @@
 #include "fascicle/fibres/attachment.hpp"
 #include "fascicle/fibres/decompose.hpp"
 #include "fascicle/fibres/harmonic.hpp"
+#include "fascicle/fibres/template_mapping.hpp"
 #include "fascicle/geometry/primitives.hpp"
 
 #include <gtest/gtest.h>
@@ -152,4 +153,55 @@ TEST(PennateHarmonicField, InteriorSheetReceivesTheFibres) {
               median(end_x) * 1e3);
   EXPECT_LT(median(end_x), 1.5e-3);
   EXPECT_GT(median(start_x), 4e-3);
+}
+
+TEST(FaceThickness, MatchesTheEllipseChordsAlongTheInwardNormals) {
+  // Elliptic slab: semi-axes a = 8 mm (x, the thickness direction), b = 20 mm. For a point (x, y)
+  // on the ellipse with unit normal n, the chord along -n has length
+  // t = 2 (x n_x / a^2 + y n_y / b^2) / (n_x^2 / a^2 + n_y^2 / b^2). The median over the vertices
+  // whose normal is within 60 degrees of +-x is computed here independently of the library.
+  const TriMesh m = make_slab();
+  const double a = 0.008, b = 0.02;
+  std::vector<double> chords;
+  for (int k = 0; k < 48; ++k) {
+    const double phi = 2.0 * M_PI * k / 48;
+    const double x = a * std::cos(phi), y = b * std::sin(phi);
+    const Vec2 n = Vec2(x / (a * a), y / (b * b)).normalized();
+    if (std::abs(n.x()) < 0.5) continue;
+    chords.push_back(2.0 * (x * n.x() / (a * a) + y * n.y() / (b * b)) /
+                     (n.x() * n.x() / (a * a) + n.y() * n.y() / (b * b)));
+  }
+  const double expected = median(chords);
+  AponeurosisOptions o;
+  o.thickness_direction = Vec3::UnitX();
+  const double t = calc_face_thickness(m, o);
+  std::printf("face thickness %.3f mm, analytic median chord %.3f mm\n", t * 1e3, expected * 1e3);
+  EXPECT_NEAR(t, expected, 0.02 * expected);  // the mesh is a 48-gon, not the ellipse
+  EXPECT_LE(t, 2 * a * (1 + 1e-9));           // never more than the thickness at y = 0
+}
+
+TEST(PennateRise, MappedCrossingGivesTheTargetAngleInABox) {
+  // Box 16 x 40 x 120 mm: every slice is a 16 x 40 mm rectangle, the template's x lines map
+  // straight across (crossing = 16 mm = mean thickness), so a pennate fibre's chord makes exactly
+  // the target angle with the line of action and is 16 mm / sin(alpha) long.
+  const TriMesh m = make_box(Vec3(0.008, 0.02, 0.06));
+  const Attachments areas = find_end_attachments(m);
+  const TemplateMapper mapper(m, areas);
+  EXPECT_NEAR(mapper.get_mean_crossing(), 0.016, 1e-9);
+  EXPECT_NEAR(mapper.get_mean_thickness(), 0.016, 1e-9);
+  const double alpha = 20.0 * M_PI / 180;
+  DecomposeOptions opt;
+  opt.fibre_template = FibreTemplate::pennate;
+  opt.count = 40;
+  opt.resolution = 9;
+  opt.pennation_rad = alpha;
+  opt.rise_crossing = DecomposeOptions::RiseCrossing::mapped_crossing;
+  const Decomposition d = decompose_muscle(m, areas, opt);
+  ASSERT_EQ(d.fibres.size(), 40u);
+  const Vec3 ez = mapper.get_box_frame().linear().col(2);
+  for (const Points3& P : d.fibres.fibres) {
+    const Vec3 chord = P.row(P.rows() - 1) - P.row(0);
+    EXPECT_NEAR(std::acos(std::abs(chord.normalized().dot(ez))), alpha, 0.2 * M_PI / 180);
+    EXPECT_NEAR(calc_polyline_length(P), 0.016 / std::sin(alpha), 0.5e-3);
+  }
 }

@@ -319,4 +319,6 @@ INSTANTIATE_TEST_SUITE_P(
         WardCase{1, kHarmonic, FibreTemplate::parallel, true, kBi, 9.6},
         WardCase{4, kHarmonic, FibreTemplate::parallel, true, kUni, 20.5},
         WardCase{4, kHarmonic, FibreTemplate::parallel, true, kUni, 20.5, false},
-        WardCase{6, kHarmonic, FibreTemplate::parallel, true, kBi, 9.6}));
+        WardCase{6, kHarmonic, FibreTemplate::parallel, true, kBi, 9.6},
+        // Soleus as its largest part, the unipennate posterior soleus (Agur et al. 2003).
+        WardCase{0, kHarmonic, FibreTemplate::parallel, true, kUni, 28.3}));

@@ -101,6 +101,15 @@ struct AponeurosisOptions {
 Attachments find_aponeurosis_attachments(const TriMesh& muscle,
                                          const AponeurosisOptions& options = {});
 
+// The muscle's thickness between its two faces across the thickness direction, as ultrasound
+// measures it (the perpendicular distance between the aponeuroses a pennate fibre crosses): from
+// every vertex whose normal is within options.face_angle_rad of +x or -x (box of
+// find_aponeurosis_attachments) in the middle 80 % of the principal axis, the distance along the
+// inward vertex normal to the opposite surface; the median (m). Only the box options
+// (thickness_direction, origin_towards, face_angle_rad) are used. Throws bad_input when no such
+// vertex exists.
+double calc_face_thickness(const TriMesh& muscle, const AponeurosisOptions& options = {});
+
 // Adds an internal aponeurosis given as a mesh (e.g. a segmented sheet): its vertices and
 // triangle centroids that lie inside the muscle become `insertion_interior`. Throws bad_input when
 // none lies inside.

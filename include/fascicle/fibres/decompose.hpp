@@ -20,9 +20,15 @@ struct DecomposeOptions {
   FibreTemplate fibre_template = FibreTemplate::parallel;
   int count = 100;
   int resolution = 15;
-  // > 0: the pennate templates' rise is derived from this target pennation angle and the box's
-  // mean thickness and axial length (calc_pennate_rise); 0: the fixed default rise.
+  // > 0: the pennate templates' rise is derived from this target pennation angle, the distance
+  // a template fibre crosses in a slice, and the box's axial length (calc_pennate_rise); 0: the
+  // fixed default rise.
   double pennation_rad = 0.0;
+  // The crossing distance used for that rise: the box's mean thickness (contour area / width;
+  // the default, unchanged) or the mapped crossing (TemplateMapper::get_mean_crossing: the mapped
+  // fibres then make the target angle with the box axis; docs/fibres.md compares both).
+  enum class RiseCrossing { mean_thickness, mapped_crossing };
+  RiseCrossing rise_crossing = RiseCrossing::mean_thickness;
   TemplateMapOptions mapping;
   HarmonicOptions harmonic;
 };

@@ -53,6 +53,10 @@ class TemplateMapper {
   // Mean thickness of the muscle along the box's x axis: the mean over slices of contour area /
   // contour extent along y (m).
   double get_mean_thickness() const { return mean_thickness_; }
+  // Mean in-slice distance a pennate template fibre covers while crossing the unit square from
+  // x = 0 to x = 1: the distance between the mapped boundary points (0, y) and (1, y), averaged over
+  // the slices and y = 0.1, 0.2, ..., 0.9 (m). The pennation-derived rise uses it (docs/fibres.md).
+  double get_mean_crossing() const { return mean_crossing_; }
   const std::vector<SliceIssue>& get_issues() const { return issues_; }
   bool is_mappable() const { return issues_.empty(); }
 
@@ -67,6 +71,7 @@ class TemplateMapper {
   Transform X_mesh_box_ = Transform::Identity();
   double axial_length_ = 0.0;
   double mean_thickness_ = 0.0;
+  double mean_crossing_ = 0.0;
   std::vector<SliceIssue> issues_;
   std::unique_ptr<Slices> slices_;
   std::unique_ptr<MeshQuery> query_;
