@@ -157,13 +157,22 @@ struct MeshQuery::Bvh {
   // callback screens the whole cluster with a vectorised lower bound (calc_lower_bounds) and runs
   // the exact test only on the few survivors. Fewer, larger primitives also mean a smaller tree.
   static constexpr unsigned kCluster = 16;
-  // Per cluster, kSoaRows rows of kCluster doubles (structure of arrays): the triangle's bounding
-  // disc (centre x, y, z; unit plane normal x, y, z, zero for slivers; radius).
+  // Per cluster, kSoaRows rows of kCluster floats (structure of arrays): the triangle's bounding
+  // disc (centre x, y, z relative to the cluster's anchor; unit plane normal x, y, z, zero for
+  // slivers; radius rounded up). Float halves the memory and doubles the SIMD lanes; the screens
+  // widen their limits by a margin that covers float rounding (kFloatMargin).
   static constexpr std::size_t kSoaRows = 7;
+  // Screens accept a triangle when its float bound is within limit + kFloatMargin * (limit +
+  // 2 * cluster_extent) (+ the double margin): 2^-18 is 64 times the float unit roundoff, well above
+  // the few roundings of the bound (each relative to |p - anchor| <= limit + 2 * cluster_extent for
+  // any triangle within limit).
+  static constexpr double kFloatMargin = 0x1p-18;
   unsigned num_slots = 0;
   unsigned slot_end(unsigned prim) const { return std::min(num_slots, (prim + 1) * kCluster); }
   std::vector<double> corners;  // per slot: a, b, c (9 doubles), read by the exact kernels
-  std::vector<double> soa;      // per cluster: kSoaRows * kCluster doubles
+  std::vector<float> soa;       // per cluster: kSoaRows * kCluster floats
+  std::vector<double> anchors;  // per cluster: 3 doubles, the origin of its float centres
+  double cluster_extent = 0.0;  // max over triangles of |centre - anchor| + radius
   std::vector<int> triangle_of;  // slot -> row of F
   std::vector<int> slot_of;      // row of F -> slot
   double pad = 0.0;
@@ -223,33 +232,35 @@ namespace {
 // p from c, every point of the triangle lies within the disc of radius r about c in that plane, so
 //   dist^2 >= h^2 + max(0, |l| - r)^2.
 // A zero normal (slivers, whose computed normal is unreliable) reduces this to the bounding-sphere
-// bound max(0, |p - c| - r)^2. Rounding: the bound is accurate to ~1e-12 (|p - c| + r); callers
-// pass a limit with a larger margin. Written as a plain loop that compilers vectorise; with GCC on
+// bound max(0, |p - c| - r)^2. That bound is the distance from p to the disc (a ball for slivers),
+// a 1-Lipschitz function of p, c, and (times r) of n, so the float rounding of p - anchor, c, n and
+// r and of the evaluation changes it by a few float ulps of |p - anchor| + r; callers widen the
+// limit by Bvh::kFloatMargin for that. Written as a plain loop that compilers vectorise; with GCC on
 // x86-64 it is compiled twice (AVX2 and baseline SSE2) and the CPU picks the clone at load time
 // (neither uses FMA, so both round identically).
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__SANITIZE_ADDRESS__)
 __attribute__((target_clones("avx2", "default")))
 #endif
-unsigned find_candidates(const double* __restrict block, double px, double py, double pz,
-                         double limit2) {
+unsigned find_candidates(const float* __restrict block, float px, float py, float pz,
+                         float limit2) {
   constexpr unsigned K = MeshQuery::Bvh::kCluster;
   static_assert(K <= 32, "one bit per triangle of a cluster");
-  const double* cx = block;
-  const double* cy = block + K;
-  const double* cz = block + 2 * K;
-  const double* nx = block + 3 * K;
-  const double* ny = block + 4 * K;
-  const double* nz = block + 5 * K;
-  const double* r = block + 6 * K;
+  const float* cx = block;
+  const float* cy = block + K;
+  const float* cz = block + 2 * K;
+  const float* nx = block + 3 * K;
+  const float* ny = block + 4 * K;
+  const float* nz = block + 5 * K;
+  const float* r = block + 6 * K;
   unsigned mask = 0;
   for (unsigned k = 0; k < K; ++k) {
-    const double dx = px - cx[k], dy = py - cy[k], dz = pz - cz[k];
-    const double h = dx * nx[k] + dy * ny[k] + dz * nz[k];
-    const double lx = dx - h * nx[k], ly = dy - h * ny[k], lz = dz - h * nz[k];
+    const float dx = px - cx[k], dy = py - cy[k], dz = pz - cz[k];
+    const float h = dx * nx[k] + dy * ny[k] + dz * nz[k];
+    const float lx = dx - h * nx[k], ly = dy - h * ny[k], lz = dz - h * nz[k];
     // max(s, 0) written without a comparison (s + |s| = 2s or 0, exactly), which GCC would not
     // if-convert under the default trapping-math rules and so would not vectorise.
-    const double s = std::sqrt(lx * lx + ly * ly + lz * lz) - r[k];
-    const double e = 0.5 * (s + std::abs(s));
+    const float s = std::sqrt(lx * lx + ly * ly + lz * lz) - r[k];
+    const float e = 0.5f * (s + std::abs(s));
     mask |= static_cast<unsigned>(h * h + e * e <= limit2) << k;
   }
   return mask;
@@ -257,26 +268,25 @@ unsigned find_candidates(const double* __restrict block, double px, double py, d
 
 // Which triangles of one cluster the line origin + t * direction may meet: bit k is set unless
 // the line misses triangle k's bounding sphere (centre c, radius r + margin), tested as
-// |(c - o) x d|^2 > (r + margin)^2 |d|^2 without a square root. The rounding error of the cross
-// product is ~1e-15 |c - o|, far below the caller's margin. Vectorised like find_candidates.
+// |(c - o) x d|^2 > (r + margin)^2 |d|^2 without a square root, in float relative to the cluster's
+// anchor. The rounding error of the cross product is a few float ulps of |c - o| |d|; the caller's
+// margin is 2^-18 (|o - anchor| + 2 * cluster extent). Vectorised like find_candidates.
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__SANITIZE_ADDRESS__)
 __attribute__((target_clones("avx2", "default")))
 #endif
-unsigned find_ray_candidates(const double* __restrict block, const double* __restrict origin,
-                             const double* __restrict direction, double margin) {
+unsigned find_ray_candidates(const float* __restrict block, float ox, float oy, float oz, float dx,
+                             float dy, float dz, float margin) {
   constexpr unsigned K = MeshQuery::Bvh::kCluster;
-  const double* cx = block;
-  const double* cy = block + K;
-  const double* cz = block + 2 * K;
-  const double* r = block + 6 * K;
-  const double ox = origin[0], oy = origin[1], oz = origin[2];
-  const double dx = direction[0], dy = direction[1], dz = direction[2];
-  const double d2 = dx * dx + dy * dy + dz * dz;
+  const float* cx = block;
+  const float* cy = block + K;
+  const float* cz = block + 2 * K;
+  const float* r = block + 6 * K;
+  const float d2 = dx * dx + dy * dy + dz * dz;
   unsigned mask = 0;
   for (unsigned k = 0; k < K; ++k) {
-    const double wx = cx[k] - ox, wy = cy[k] - oy, wz = cz[k] - oz;
-    const double x = wy * dz - wz * dy, y = wz * dx - wx * dz, z = wx * dy - wy * dx;
-    const double reach = r[k] + margin;
+    const float wx = cx[k] - ox, wy = cy[k] - oy, wz = cz[k] - oz;
+    const float x = wy * dz - wz * dy, y = wz * dx - wx * dz, z = wx * dy - wy * dx;
+    const float reach = r[k] + margin;
     mask |= static_cast<unsigned>(x * x + y * y + z * z <= reach * reach * d2) << k;
   }
   return mask;
@@ -400,9 +410,14 @@ bool point_query_callback(RTCPointQueryFunctionArguments* args) {
   const unsigned count = bvh.slot_end(args->primID) - first;
   // A triangle is tested exactly unless its lower bound exceeds the best distance (plus the
   // rounding margin): such a triangle can neither win nor tie.
-  const double limit = q->best_limit + q->margin;
+  const double limit = q->best_limit + q->margin +
+                       MeshQuery::Bvh::kFloatMargin * (q->best_limit + 2.0 * bvh.cluster_extent);
+  const double* anchor = bvh.anchors.data() + 3 * static_cast<std::size_t>(args->primID);
   unsigned mask = find_candidates(bvh.soa.data() + MeshQuery::Bvh::kSoaRows * K * args->primID,
-                                  q->p.x(), q->p.y(), q->p.z(), limit * limit);
+                                  static_cast<float>(q->p.x() - anchor[0]),
+                                  static_cast<float>(q->p.y() - anchor[1]),
+                                  static_cast<float>(q->p.z() - anchor[2]),
+                                  static_cast<float>(limit * limit * (1.0 + 1e-6)));
   if (count < K) mask &= (1u << count) - 1u;  // the last cluster may be partly empty
   bool improved = false;
   while (mask != 0) {
@@ -428,6 +443,7 @@ struct RayState {
   int crossings;                 // RayMode::crossings: signed sum
   bool grazed;                   // RayMode::crossings: a hit on an edge/vertex or in-plane
   double margin;                 // absolute margin of the bounding-sphere screen
+  std::array<float, 3> unit_direction;  // direction / |direction| in float, for the screen
 };
 
 void intersect_slot(const RTCIntersectFunctionNArguments* args, RayState* r, unsigned t) {
@@ -470,8 +486,14 @@ void intersect_callback(const RTCIntersectFunctionNArguments* args) {
   const unsigned count = r->bvh->slot_end(args->primID) - first;
   // Exact (double) tests only for the triangles whose bounding sphere the line meets: the others
   // can neither be hit nor grazed.
-  unsigned mask = find_ray_candidates(r->bvh->soa.data() + MeshQuery::Bvh::kSoaRows * K * args->primID,
-                                      r->origin.data(), r->direction.data(), r->margin);
+  const double* anchor = r->bvh->anchors.data() + 3 * static_cast<std::size_t>(args->primID);
+  const Vec3 oa(r->origin.x() - anchor[0], r->origin.y() - anchor[1], r->origin.z() - anchor[2]);
+  const double margin =
+      r->margin + MeshQuery::Bvh::kFloatMargin * (oa.norm() + 2.0 * r->bvh->cluster_extent);
+  unsigned mask = find_ray_candidates(
+      r->bvh->soa.data() + MeshQuery::Bvh::kSoaRows * K * args->primID, static_cast<float>(oa.x()),
+      static_cast<float>(oa.y()), static_cast<float>(oa.z()), r->unit_direction[0],
+      r->unit_direction[1], r->unit_direction[2], static_cast<float>(margin));
   if (count < K) mask &= (1u << count) - 1u;
   while (mask != 0) {
     const auto k = static_cast<unsigned>(std::countr_zero(mask));
@@ -523,6 +545,8 @@ RayState make_ray(const MeshQuery::Bvh& bvh, const Vec3& origin, const Vec3& dir
   s.crossings = 0;
   s.grazed = false;
   s.margin = 1e-10 * ((origin - bvh.middle).norm() + bvh.scale);
+  const Vec3 unit = direction.normalized();
+  s.unit_direction = {static_cast<float>(unit.x()), static_cast<float>(unit.y()), static_cast<float>(unit.z())};
   return s;
 }
 
@@ -584,31 +608,49 @@ namespace {
 void fill_slots(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
   constexpr unsigned K = MeshQuery::Bvh::kCluster;
   const std::size_t num_clusters = (bvh.num_slots + K - 1) / K;
-  bvh.corners.assign(9 * static_cast<std::size_t>(bvh.num_slots), 0.0);
-  bvh.soa.assign(MeshQuery::Bvh::kSoaRows * K * num_clusters, 0.0);
-  for (std::size_t slot = 0; slot < bvh.num_slots; ++slot) {
-    const Eigen::Index f = bvh.triangle_of[slot];
-    double* c = bvh.corners.data() + 9 * slot;
-    for (int k = 0; k < 3; ++k) {
-      for (int j = 0; j < 3; ++j) c[3 * k + j] = mesh.V(mesh.F(f, k), j);
+  bvh.corners.resize(9 * static_cast<std::size_t>(bvh.num_slots));
+  bvh.soa.assign(MeshQuery::Bvh::kSoaRows * K * num_clusters, 0.0f);
+  bvh.anchors.resize(3 * num_clusters);
+  bvh.cluster_extent = 0.0;
+  std::array<Vec3, K> centres;
+  for (std::size_t cluster = 0; cluster < num_clusters; ++cluster) {
+    const std::size_t first = cluster * K;
+    const std::size_t count = std::min<std::size_t>(K, bvh.num_slots - first);
+    Vec3 anchor = Vec3::Zero();
+    for (std::size_t k = 0; k < count; ++k) {
+      const std::size_t slot = first + k;
+      const Eigen::Index f = bvh.triangle_of[slot];
+      double* c = bvh.corners.data() + 9 * slot;
+      for (int v = 0; v < 3; ++v) {
+        for (int j = 0; j < 3; ++j) c[3 * v + j] = mesh.V(mesh.F(f, v), j);
+      }
+      centres[k] = (bvh.corner(static_cast<unsigned>(slot), 0) + bvh.corner(static_cast<unsigned>(slot), 1) +
+                    bvh.corner(static_cast<unsigned>(slot), 2)) / 3.0;
+      anchor += centres[k];
     }
-    const Vec3 a = bvh.corner(static_cast<unsigned>(slot), 0), b = bvh.corner(static_cast<unsigned>(slot), 1),
-               cc = bvh.corner(static_cast<unsigned>(slot), 2);
-    const Vec3 centre = (a + b + cc) / 3.0;
-    const double r = std::max({(a - centre).norm(), (b - centre).norm(), (cc - centre).norm()});
-    // The computed normal's direction error is about 1e-16 / sin(angle at a): trust it only when
-    // that angle is not tiny (error < 1e-12), otherwise fall back to the sphere bound (n = 0).
-    Vec3 n = (b - a).cross(cc - a);
-    const double n_len = n.norm();
-    n = n_len > 1e-4 * (b - a).norm() * (cc - a).norm() ? Vec3(n / n_len) : Vec3::Zero();
-    double* block = bvh.soa.data() + MeshQuery::Bvh::kSoaRows * K * (slot / K) + slot % K;
-    block[0 * K] = centre.x();
-    block[1 * K] = centre.y();
-    block[2 * K] = centre.z();
-    block[3 * K] = n.x();
-    block[4 * K] = n.y();
-    block[5 * K] = n.z();
-    block[6 * K] = r * (1.0 + 1e-12);  // rounded up: the bound stays a bound after rounding
+    anchor /= static_cast<double>(count);
+    for (int j = 0; j < 3; ++j) bvh.anchors[3 * cluster + static_cast<std::size_t>(j)] = anchor[j];
+    float* block = bvh.soa.data() + MeshQuery::Bvh::kSoaRows * K * cluster;
+    for (std::size_t k = 0; k < count; ++k) {
+      const auto slot = static_cast<unsigned>(first + k);
+      const Vec3 a = bvh.corner(slot, 0), b = bvh.corner(slot, 1), cc = bvh.corner(slot, 2);
+      const Vec3& centre = centres[k];
+      const double r = std::max({(a - centre).norm(), (b - centre).norm(), (cc - centre).norm()});
+      // The computed normal's direction error is about 1e-16 / sin(angle at a): trust it only when
+      // that angle is not tiny (error < 1e-12), otherwise fall back to the sphere bound (n = 0).
+      Vec3 n = (b - a).cross(cc - a);
+      const double n_len = n.norm();
+      n = n_len > 1e-4 * (b - a).norm() * (cc - a).norm() ? Vec3(n / n_len) : Vec3::Zero();
+      const Vec3 rel = centre - anchor;
+      block[0 * K + k] = static_cast<float>(rel.x());
+      block[1 * K + k] = static_cast<float>(rel.y());
+      block[2 * K + k] = static_cast<float>(rel.z());
+      block[3 * K + k] = static_cast<float>(n.x());
+      block[4 * K + k] = static_cast<float>(n.y());
+      block[5 * K + k] = static_cast<float>(n.z());
+      block[6 * K + k] = round_up(r);  // rounded up: the disc still holds the triangle
+      bvh.cluster_extent = std::max(bvh.cluster_extent, rel.norm() + r);
+    }
   }
   bvh.box_lo = mesh.V.colwise().minCoeff().transpose();
   bvh.box_hi = mesh.V.colwise().maxCoeff().transpose();
