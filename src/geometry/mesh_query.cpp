@@ -611,47 +611,56 @@ void fill_slots(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
   bvh.corners.resize(9 * static_cast<std::size_t>(bvh.num_slots));
   bvh.soa.assign(MeshQuery::Bvh::kSoaRows * K * num_clusters, 0.0f);
   bvh.anchors.resize(3 * num_clusters);
-  bvh.cluster_extent = 0.0;
-  std::array<Vec3, K> centres;
-  for (std::size_t cluster = 0; cluster < num_clusters; ++cluster) {
+  // Per cluster: an upper bound of max(|centre - anchor| + radius) (max |rel| + max radius).
+  std::vector<double> extent(num_clusters, 0.0);
+  // Clusters are independent: filled in parallel, the result does not depend on the schedule.
+  parallel_for(num_clusters, [&](std::size_t cluster) {
     const std::size_t first = cluster * K;
     const std::size_t count = std::min<std::size_t>(K, bvh.num_slots - first);
+    std::array<Vec3, K> centres;
     Vec3 anchor = Vec3::Zero();
     for (std::size_t k = 0; k < count; ++k) {
       const std::size_t slot = first + k;
       const Eigen::Index f = bvh.triangle_of[slot];
       double* c = bvh.corners.data() + 9 * slot;
       for (int v = 0; v < 3; ++v) {
-        for (int j = 0; j < 3; ++j) c[3 * v + j] = mesh.V(mesh.F(f, v), j);
+        const Eigen::Index row = mesh.F(f, v);
+        for (int j = 0; j < 3; ++j) c[3 * v + j] = mesh.V(row, j);
       }
-      centres[k] = (bvh.corner(static_cast<unsigned>(slot), 0) + bvh.corner(static_cast<unsigned>(slot), 1) +
-                    bvh.corner(static_cast<unsigned>(slot), 2)) / 3.0;
+      centres[k] = Vec3((c[0] + c[3] + c[6]) / 3.0, (c[1] + c[4] + c[7]) / 3.0, (c[2] + c[5] + c[8]) / 3.0);
       anchor += centres[k];
     }
     anchor /= static_cast<double>(count);
     for (int j = 0; j < 3; ++j) bvh.anchors[3 * cluster + static_cast<std::size_t>(j)] = anchor[j];
     float* block = bvh.soa.data() + MeshQuery::Bvh::kSoaRows * K * cluster;
+    double max_rel2 = 0.0, max_r = 0.0;
     for (std::size_t k = 0; k < count; ++k) {
       const auto slot = static_cast<unsigned>(first + k);
       const Vec3 a = bvh.corner(slot, 0), b = bvh.corner(slot, 1), cc = bvh.corner(slot, 2);
       const Vec3& centre = centres[k];
-      const double r = std::max({(a - centre).norm(), (b - centre).norm(), (cc - centre).norm()});
+      const double r = std::sqrt(std::max({(a - centre).squaredNorm(), (b - centre).squaredNorm(),
+                                           (cc - centre).squaredNorm()}));
       // The computed normal's direction error is about 1e-16 / sin(angle at a): trust it only when
       // that angle is not tiny (error < 1e-12), otherwise fall back to the sphere bound (n = 0).
-      Vec3 n = (b - a).cross(cc - a);
-      const double n_len = n.norm();
-      n = n_len > 1e-4 * (b - a).norm() * (cc - a).norm() ? Vec3(n / n_len) : Vec3::Zero();
+      const Vec3 ab = b - a, ac = cc - a;
+      const Vec3 n = ab.cross(ac);
+      const double n_len2 = n.squaredNorm();
+      const Vec3 unit = n_len2 > 1e-8 * ab.squaredNorm() * ac.squaredNorm() ? Vec3(n / std::sqrt(n_len2))
+                                                                           : Vec3::Zero();
       const Vec3 rel = centre - anchor;
       block[0 * K + k] = static_cast<float>(rel.x());
       block[1 * K + k] = static_cast<float>(rel.y());
       block[2 * K + k] = static_cast<float>(rel.z());
-      block[3 * K + k] = static_cast<float>(n.x());
-      block[4 * K + k] = static_cast<float>(n.y());
-      block[5 * K + k] = static_cast<float>(n.z());
+      block[3 * K + k] = static_cast<float>(unit.x());
+      block[4 * K + k] = static_cast<float>(unit.y());
+      block[5 * K + k] = static_cast<float>(unit.z());
       block[6 * K + k] = round_up(r);  // rounded up: the disc still holds the triangle
-      bvh.cluster_extent = std::max(bvh.cluster_extent, rel.norm() + r);
+      max_rel2 = std::max(max_rel2, rel.squaredNorm());
+      max_r = std::max(max_r, r);
     }
-  }
+    extent[cluster] = std::sqrt(max_rel2) + max_r;
+  });
+  bvh.cluster_extent = num_clusters > 0 ? *std::max_element(extent.begin(), extent.end()) : 0.0;
   bvh.box_lo = mesh.V.colwise().minCoeff().transpose();
   bvh.box_hi = mesh.V.colwise().maxCoeff().transpose();
   const double scale = std::max(bvh.box_lo.cwiseAbs().maxCoeff(), bvh.box_hi.cwiseAbs().maxCoeff()) +
