@@ -166,7 +166,19 @@ struct ArchitectureCase {
   double ward_m;
   const char* tracts;
   const char* aponeurosis;
+  // Unipennate muscles whose insertion aponeurosis is known to be deep (the medial
+  // gastrocnemius: the deep, anterior aponeurosis continues into the Achilles tendon): a mesh on
+  // the deep side; the insertion face is the one towards its centroid. nullptr: eigenvector sign.
+  const char* deep_side = nullptr;
 };
+
+// The insertion side for a case: from the muscle's centroid to the deep-side mesh's centroid, or
+// zero.
+Vec3 find_deep_direction(const ArchitectureCase& c, const TriMesh& muscle) {
+  if (!c.deep_side) return Vec3::Zero();
+  const TriMesh other = read_mesh(data / c.deep_side, LengthUnit::millimetre);
+  return Vec3(other.V.colwise().mean()) - Vec3(muscle.V.colwise().mean());
+}
 
 const ArchitectureCase architecture_cases[] = {
     {"soleus", vh + "Muscle_Soleus_smooth.stl", Architecture::bipennate, 28.3, 0.0440, nullptr,
@@ -174,13 +186,14 @@ const ArchitectureCase architecture_cases[] = {
     {"tibialis_anterior", vh + "Muscle_TibialisAnterior_smooth.stl", Architecture::bipennate, 9.6,
      0.0683, nullptr, nullptr},
     {"medial_gastrocnemius", vh + "Muscle_GastrocnemiusMedial_smooth.stl",
-     Architecture::unipennate, 9.9, 0.0510, nullptr, nullptr},
+     Architecture::unipennate, 9.9, 0.0510, nullptr, nullptr, "visible_human_female/right/VHF_Right_Bone_Tibia_smooth.stl"},
     {"vastus_lateralis", vh + "Muscle_VastusLateralis_smooth.stl", Architecture::unipennate, 18.4,
      0.0994, nullptr, nullptr},
     {"gluteus_medius", vh + "Muscle_GluteusMedius_smooth.stl", Architecture::unipennate, 20.5,
      0.0733, nullptr, nullptr},
+    // Deep side: the anterior compartment (the subject's TA, same MRI frame).
     {"bolsterlee_MG", "bolsterlee_dti/MG.stl", Architecture::unipennate, 9.9, 0.0510,
-     "bolsterlee_dti/tracts_MG.txt", nullptr},
+     "bolsterlee_dti/tracts_MG.txt", nullptr, "bolsterlee_dti/TA.stl"},
     {"bolsterlee_TA", "bolsterlee_dti/TA.stl", Architecture::bipennate, 9.6, 0.0683,
      "bolsterlee_dti/tracts_TA.txt", "bolsterlee_dti/TA_apo.stl"},
     // The posterior soleus, the largest part of the muscle, is unipennate between the anterior
@@ -197,7 +210,9 @@ void BM_ValidateArchitecture(benchmark::State& state) {
   AponeurosisOptions ao;
   ao.architecture = c.architecture;
   ao.pennation_rad = c.pennation_deg * M_PI / 180;
+  ao.insertion_face_towards = find_deep_direction(c, muscle);
   DecomposeOptions opt;
+  opt.mapping.insertion_side_towards = ao.insertion_face_towards;
   opt.method = method;
   opt.fibre_template = tmpl;
   opt.count = 100;
@@ -262,6 +277,7 @@ void BM_ValidateRiseRule(benchmark::State& state) {
   opt.pennation_rad = c.pennation_deg * M_PI / 180;
   opt.rise_crossing = mapped ? DecomposeOptions::RiseCrossing::mapped_crossing
                              : DecomposeOptions::RiseCrossing::mean_thickness;
+  opt.mapping.insertion_side_towards = find_deep_direction(c, muscle);
   if (c.aponeurosis)
     opt.mapping.thickness_direction =
         calc_sheet_normal(read_mesh(data / c.aponeurosis, LengthUnit::millimetre));
@@ -315,10 +331,14 @@ BENCHMARK(BM_ThicknessConsistency)
 // Also the mean angle per fifth of the tract segments along the principal axis (proximal first).
 void BM_DtiThicknessPennation(benchmark::State& state) {
   const ArchitectureCase& c = architecture_cases[state.range(0)];
-  const bool harmonic = state.range(1) == 1;
+  // Variant: 0 template pennate, 1 pennate field (angle to the line of action), 2 pennate field
+  // with the angle to the aponeurosis level sets (HarmonicOptions::pennation_reference).
+  const bool harmonic = state.range(1) >= 1;
+  const bool to_aponeurosis = state.range(1) == 2;
   const TriMesh muscle = read_mesh(data / c.mesh, LengthUnit::millimetre);
   AponeurosisOptions ao;
   ao.architecture = c.architecture;
+  ao.insertion_face_towards = find_deep_direction(c, muscle);
   TriMesh apo;
   if (c.aponeurosis) {
     apo = read_mesh(data / c.aponeurosis, LengthUnit::millimetre);
@@ -335,11 +355,14 @@ void BM_DtiThicknessPennation(benchmark::State& state) {
   opt.resolution = 16;
   opt.pennation_rad = alpha;
   opt.mapping.thickness_direction = ao.thickness_direction;
+  opt.mapping.insertion_side_towards = ao.insertion_face_towards;
   Attachments areas;
   if (harmonic) {
     areas = find_aponeurosis_attachments(muscle, ao);
     if (c.aponeurosis) set_interior_aponeurosis(muscle, apo, areas);
     opt.harmonic.pennation_rad = alpha;
+    if (to_aponeurosis)
+      opt.harmonic.pennation_reference = HarmonicOptions::PennationReference::aponeurosis;
   } else {
     areas = find_end_attachments(muscle);
   }
@@ -371,10 +394,12 @@ void BM_DtiThicknessPennation(benchmark::State& state) {
         part[b].size() ? compare_directions(d.fibres, part[b]).mean_rad * 180 / M_PI : -1.0;
     state.counters[key + "_n"] = static_cast<double>(part[b].size());
   }
-  state.SetLabel(std::string(c.name) + (harmonic ? " pennate-field" : " template pennate"));
+  state.SetLabel(std::string(c.name) + (!harmonic        ? " template pennate"
+                                        : to_aponeurosis ? " pennate-field (to aponeurosis)"
+                                                         : " pennate-field"));
 }
 BENCHMARK(BM_DtiThicknessPennation)
-    ->ArgsProduct({{5, 6}, {0, 1}})
+    ->ArgsProduct({{5, 6}, {0, 1, 2}})
     ->Iterations(1)
     ->Unit(benchmark::kMillisecond);
 
@@ -389,7 +414,9 @@ void BM_DtiPennationSweep(benchmark::State& state) {
   AponeurosisOptions ao;
   ao.architecture = c.architecture;
   ao.pennation_rad = alpha;
+  ao.insertion_face_towards = find_deep_direction(c, muscle);
   DecomposeOptions opt;
+  opt.mapping.insertion_side_towards = ao.insertion_face_towards;
   opt.method = harmonic ? FibreMethod::harmonic : FibreMethod::template_map;
   opt.fibre_template = FibreTemplate::pennate;
   opt.count = 100;

@@ -68,6 +68,7 @@ std::pair<Vec3, Vec3> calc_box_axes(const TriMesh& muscle, const AponeurosisOpti
     ex = eig.eigenvectors().col(1);  // col(0) is ~ez (zero variance after projection)
     ex = (ex - ex.dot(ez) * ez).normalized();
   }
+  if (ex.dot(o.insertion_face_towards) < 0.0) ex = -ex;
   return {ez, ex};
 }
 
@@ -125,7 +126,7 @@ Attachments find_aponeurosis_attachments(const TriMesh& muscle, const Aponeurosi
   const double d = std::clamp(crossing / std::tan(o.pennation_rad), 0.2 * L, 0.8 * L);
   const Points3 N = calc_vertex_normals(muscle);
   const double c = std::cos(o.face_angle_rad);
-  std::vector<int> origin, insertion;
+  std::vector<int> origin, insertion, face_minus, face_plus;
   for (Eigen::Index v = 0; v < s.size(); ++v) {
     const double nx = N.row(v).dot(ex);
     const bool minus_face = nx <= -c, plus_face = nx >= c;
@@ -136,6 +137,8 @@ Attachments find_aponeurosis_attachments(const TriMesh& muscle, const Aponeurosi
     } else {
       if (minus_face && s(v) <= L - d) origin.push_back(vi);
       if (plus_face && s(v) >= d) insertion.push_back(vi);
+      if (minus_face) face_minus.push_back(vi);
+      if (plus_face) face_plus.push_back(vi);
     }
   }
   if (origin.empty() || insertion.empty())
@@ -144,6 +147,8 @@ Attachments find_aponeurosis_attachments(const TriMesh& muscle, const Aponeurosi
                     {.suggestion = "give the thickness direction, or a smaller pennation angle"});
   Attachments a{make_attachment_area(muscle, origin, "origin"),
                 make_attachment_area(muscle, insertion, "insertion")};
+  a.face_minus = std::move(face_minus);
+  a.face_plus = std::move(face_plus);
   if (bi) {
     // Central sheet at mid-thickness over [d, L], sampled on a grid and kept inside the muscle.
     const MeshQuery query(muscle);

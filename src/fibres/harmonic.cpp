@@ -166,20 +166,41 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
     Points3 tet_along, vertex_along;
     calc_field_gradients(field.tets, field.u_along, tet_along, vertex_along);
     const double ca = std::cos(options.pennation_rad), sa = std::sin(options.pennation_rad);
-    const auto blend = [&](Points3& across, const Points3& along) {
-      for (Eigen::Index i = 0; i < across.rows(); ++i) {
+    const bool to_aponeurosis =
+        options.pennation_reference == HarmonicOptions::PennationReference::aponeurosis;
+    // Transmural direction for the aponeurosis reference: with both faces of a unipennate muscle
+    // known, the gradient of their potential (0 on -x, 1 on +x; level sets parallel to both
+    // aponeuroses, as the transmural potential of Bayer et al. 2012); otherwise grad(u).
+    Points3 tet_across = field.tet_gradient, vertex_across = field.vertex_gradient;
+    if (to_aponeurosis && !areas.face_minus.empty() && !areas.face_plus.empty()) {
+      const VecX u_t = solve_laplace(field.tets, areas.face_minus, areas.face_plus);
+      calc_field_gradients(field.tets, u_t, tet_across, vertex_across);
+    }
+    const auto blend = [&](Points3& out, const Points3& across, const Points3& along) {
+      for (Eigen::Index i = 0; i < out.rows(); ++i) {
         const Vec3 gl = along.row(i), gt = across.row(i);
+        if (to_aponeurosis) {
+          // The angle to the level set of u: e_n = grad(u) / |.|, e_a = grad(u_along) within it.
+          if (!(gt.norm() > 0.0)) continue;
+          const Vec3 en = gt.normalized();
+          const Vec3 a = gl - gl.dot(en) * en;
+          const Vec3 d = a.norm() > 1e-6 * gl.norm() && a.norm() > 0.0
+                             ? Vec3(ca * a.normalized() + sa * en)
+                             : en;
+          out.row(i) = d.transpose();
+          continue;
+        }
         if (!(gl.norm() > 0.0)) continue;  // keep the across direction
         const Vec3 el = gl.normalized();
         const Vec3 t = gt - gt.dot(el) * el;
         const Vec3 d = t.norm() > 1e-6 * gt.norm() && t.norm() > 0.0
                            ? Vec3(ca * el + sa * t.normalized())
                            : el;
-        across.row(i) = d.transpose();
+        out.row(i) = d.transpose();
       }
     };
-    blend(field.tet_gradient, tet_along);
-    blend(field.vertex_gradient, vertex_along);
+    blend(field.tet_gradient, tet_across, tet_along);
+    blend(field.vertex_gradient, vertex_across, vertex_along);
   }
   return field;
 }

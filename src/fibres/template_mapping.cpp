@@ -113,6 +113,10 @@ TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
     ex = t.normalized();
     ey = ez.cross(ex);
   }
+  if (ex.dot(options.insertion_side_towards) < 0.0) {
+    ex = -ex;
+    ey = ez.cross(ex);  // keep the frame right-handed
+  }
   // Axial range: from the origin level to the insertion level, kept clear of the tips.
   const VecX s = muscle.V * ez;
   const double smin = s.minCoeff(), smax = s.maxCoeff();

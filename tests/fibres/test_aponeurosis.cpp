@@ -31,7 +31,10 @@ double median(std::vector<double> v) {
 
 // 60 harmonic fibres × 12 points in the slab, with aponeurosis areas of the given architecture and
 // the pennate field at angle alpha (thickness along x).
-Decomposition decompose_slab_pennate(Architecture architecture, double alpha) {
+Decomposition decompose_slab_pennate(
+    Architecture architecture, double alpha,
+    HarmonicOptions::PennationReference reference =
+        HarmonicOptions::PennationReference::line_of_action) {
   AponeurosisOptions o;
   o.architecture = architecture;
   o.pennation_rad = alpha;
@@ -43,6 +46,7 @@ Decomposition decompose_slab_pennate(Architecture architecture, double alpha) {
   opt.count = 60;
   opt.resolution = 12;
   opt.harmonic.pennation_rad = alpha;
+  opt.harmonic.pennation_reference = reference;
   return decompose_muscle(m, a, opt);
 }
 
@@ -117,9 +121,14 @@ TEST(PennateRise, GivesTheTargetAngle) {
   }
 }
 
-TEST(PennateHarmonicField, FibresRunAtThePennationAngle) {
+class PennateHarmonicFieldReference
+    : public ::testing::TestWithParam<HarmonicOptions::PennationReference> {};
+
+// In the slab the aponeuroses (the +-x faces) are parallel to the line of action (z), so both
+// references give the same fibres: cos(a) z + sin(a) x in the middle.
+TEST_P(PennateHarmonicFieldReference, FibresRunAtThePennationAngle) {
   const double alpha = 30.0 * M_PI / 180;
-  const Decomposition d = decompose_slab_pennate(Architecture::unipennate, alpha);
+  const Decomposition d = decompose_slab_pennate(Architecture::unipennate, alpha, GetParam());
   ASSERT_GE(d.fibres.size(), 55u);
   std::vector<double> angles, crossings;
   for (const Points3& P : d.fibres.fibres) {
@@ -137,6 +146,24 @@ TEST(PennateHarmonicField, FibresRunAtThePennationAngle) {
   EXPECT_NEAR(median(angles), alpha, 2.0 * M_PI / 180);
   // Fibres cross from the -x face to the +x face.
   EXPECT_GT(median(crossings), 0.008);
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Fibres, PennateHarmonicFieldReference,
+    ::testing::Values(HarmonicOptions::PennationReference::line_of_action,
+                      HarmonicOptions::PennationReference::aponeurosis));
+
+TEST(PennateHarmonicField, UnipennateAreasCarryBothWholeFaces) {
+  AponeurosisOptions o;
+  o.pennation_rad = 30.0 * M_PI / 180;
+  o.thickness_direction = Vec3::UnitX();
+  const TriMesh m = make_slab();
+  const Attachments a = find_aponeurosis_attachments(m, o);
+  // The whole faces contain the strips, and each is more than the strip (full length).
+  EXPECT_GT(a.face_minus.size(), a.origin.vertices.size());
+  EXPECT_GT(a.face_plus.size(), a.insertion.vertices.size());
+  for (int v : a.face_minus) EXPECT_LT(m.V(v, 0), 0.0);
+  for (int v : a.face_plus) EXPECT_GT(m.V(v, 0), 0.0);
 }
 
 TEST(PennateHarmonicField, InteriorSheetReceivesTheFibres) {

@@ -30,6 +30,11 @@ struct Attachments {
   // or a segmented aponeurosis such as the tibialis anterior's); empty when the insertion is on
   // the surface only. The harmonic method holds u = 1 there; the template method ignores it.
   Points3 insertion_interior = Points3(0, 3);
+  // Unipennate aponeurosis areas only (find_aponeurosis_attachments): every vertex of the -x and
+  // of the +x face, over the whole length. Their potential (0 on -x, 1 on +x) has level sets
+  // parallel to both faces, the reference of HarmonicOptions::PennationReference::aponeurosis.
+  // Empty otherwise.
+  std::vector<int> face_minus, face_plus;
 };
 
 // Builds an area from vertex indices (duplicates removed). Throws bad_input when the set is empty
@@ -87,6 +92,10 @@ struct AponeurosisOptions {
   double sheet_spacing_m = 1e-3;  // bipennate: spacing of the central sheet's sample points
   Vec3 origin_towards = Vec3::UnitZ();
   Vec3 thickness_direction = Vec3::Zero();  // zero: least variance across the principal axis
+  // Nonzero: the sign of x is chosen so the insertion (+x) face is the one towards this direction
+  // (unipennate: e.g. the deep side, towards the bone, for the medial gastrocnemius, whose
+  // insertion aponeurosis is deep). Zero: the sign of the eigenvector or of thickness_direction.
+  Vec3 insertion_face_towards = Vec3::Zero();
 };
 
 // Aponeurosis attachment areas derived from the muscle's shape and architecture (docs/fibres.md,

@@ -44,6 +44,14 @@ struct HarmonicOptions {
   // Bayer et al. 2012). 0: fibres follow grad(u) (the plain harmonic method).
   double pennation_rad = 0.0;
   double end_fraction = 0.08;
+  // What the pennation angle of the pennate field is measured against. line_of_action (default):
+  // d = cos(a) e_l + sin(a) e_t with e_l the end-to-end direction grad(u_along) and e_t the part of
+  // grad(u) normal to it. aponeurosis: the angle between the fibre and the local level set of u
+  // (the surfaces parallel to the aponeuroses; ultrasound measures pennation against the
+  // aponeurosis): d = cos(a) e_a + sin(a) e_n with e_n = grad(u) / |grad(u)| and e_a the part of
+  // grad(u_along) normal to e_n.
+  enum class PennationReference { line_of_action, aponeurosis };
+  PennationReference pennation_reference = PennationReference::line_of_action;
 };
 
 // Tetrahedralises `muscle` and solves the field for the given attachment areas. An interior

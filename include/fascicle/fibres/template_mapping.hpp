@@ -26,6 +26,10 @@ struct TemplateMapOptions {
   // normal to the line of action; zero: x is normal to the direction of largest variance.
   // E.g. the normal of a known aponeurosis sheet.
   Vec3 thickness_direction = Vec3::Zero();
+  // Nonzero: the sign of x is chosen so the box's +x side (where pennate fibres end) is the one
+  // towards this direction (e.g. the deep side of the medial gastrocnemius). Zero: the sign given
+  // by the eigenvector or by thickness_direction.
+  Vec3 insertion_side_towards = Vec3::Zero();
 };
 
 // A slice whose plane cuts the muscle into more than one closed contour: the template cannot be
