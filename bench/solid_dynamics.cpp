@@ -30,7 +30,8 @@ std::shared_ptr<const SolidDynamicsModel> make_model(int degree, int qpts, Volum
 }
 
 // args: degree, quadrature points per span, Newton (1: full, 0: modified within a step,
-// 2: factorisation kept over up to 20 steps), supernodal CHOLMOD (1) or Eigen LDLT (0)
+// 2: factorisation kept over up to 20 steps), supernodal CHOLMOD (1), simplicial CHOLMOD (2) or
+// Eigen LDLT (0)
 void BM_BackwardEulerStep(benchmark::State& state) {
   const int degree = static_cast<int>(state.range(0));
   const int q = static_cast<int>(state.range(1));
@@ -39,6 +40,7 @@ void BM_BackwardEulerStep(benchmark::State& state) {
   o.refresh_stiffness = state.range(2) != 0;
   o.reuse_factorisation_steps = state.range(2) == 2 ? 20 : state.range(2) >= 10 ? static_cast<int>(state.range(2)) : 0;
   o.supernodal = state.range(3) != 0;
+  o.cholmod_simplicial = state.range(3) == 2;
   o.newton_tolerance = 1e-6;
   SolidDynamicsSolver solver(m, o);
   StepInputs in;
@@ -62,7 +64,7 @@ void BM_BackwardEulerStep(benchmark::State& state) {
 BENCHMARK(BM_BackwardEulerStep)
     ->Args({2, 3, 1, 1})->Args({2, 2, 1, 1})->Args({2, 2, 1, 0})->Args({2, 2, 0, 1})
     ->Args({2, 2, 2, 1})->Args({3, 4, 1, 1})->Args({3, 2, 2, 1})->Args({3, 2, 1, 1})
-    ->Args({3, 2, 50, 1})->Args({3, 2, 200, 1})
+    ->Args({3, 2, 50, 1})->Args({3, 2, 200, 1})->Args({3, 2, 2, 2})->Args({3, 2, 1, 2})
     ->Unit(benchmark::kMillisecond);
 // The target row (issue 10: a cubic 6 x 6 x 10 solid) with a fixed number of steps, for a
 // load-independent instruction count: valgrind --tool=callgrind --toggle-collect='*::step*'.

@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 namespace fascicle {
 namespace dynamics_detail {
@@ -29,16 +30,6 @@ Mat3 calc_deformation_gradient(const Points3& P, const int* idx, const Vec3* g, 
     F.col(2) += g[a][2] * x;
   }
   return F;
-}
-
-std::vector<double> calc_fibre_stretches(const SolidDynamicsModel& m, const Points3& P) {
-  std::vector<double> out(m.quadrature.size(), 1.0);
-  for (std::size_t qi = 0; qi < m.quadrature.size(); ++qi) {
-    const QuadraturePoint& q = m.quadrature[qi];
-    const Mat3 F = calc_deformation_gradient(P, &m.support_index[q.first], &m.support_g[q.first], q.count);
-    out[qi] = (F * q.fibre_rest).norm();
-  }
-  return out;
 }
 
 Eigen::SparseMatrix<double> make_pattern_matrix(const SolidDynamicsModel& m) {
@@ -184,6 +175,126 @@ Mat9 calc_material_tangent(const SolidDynamicsSpec& s, const QuadraturePoint& q,
   return D;
 }
 
+// Dense accumulation of one quadrature point's stiffness over its span's support (c points):
+//   K_ab(i, k) += w Σ_jl g_a[j] ∂P_ij/∂F_kl g_b[l],
+// stored Kl[((b·3 + k)·3 + i)·c + a] so that the innermost loop runs over a, contiguous in both
+// Kl and the g columns (gcols[j·c + a] = g_a[j]), and vectorises. With an increasing support
+// only a >= b is formed (the lower blocks). D: ∂P/∂F, 9 x 9 column-major (see materials.hpp).
+[[gnu::always_inline]] inline void accumulate_tangent_body(const double* gcols, int c,
+                                                           const double* D, double w,
+                                                           bool lower_only, double* Kl) {
+  const double* g0 = gcols;
+  const double* g1 = gcols + c;
+  const double* g2 = gcols + 2 * c;
+  for (int b = 0; b < c; ++b) {
+    const double wb0 = w * g0[b], wb1 = w * g1[b], wb2 = w * g2[b];
+    double* dst_b = Kl + static_cast<std::ptrdiff_t>(9) * c * b;
+    const int a0 = lower_only ? b : 0;
+    for (int k = 0; k < 3; ++k)
+      for (int i = 0; i < 3; ++i) {
+        // T_b(i + 3 j, k) = w Σ_l D(i + 3 j, k + 3 l) g_b[l]
+        double t[3];
+        for (int j = 0; j < 3; ++j) {
+          const int r = i + 3 * j;
+          t[j] = D[r + 9 * k] * wb0 + D[r + 9 * (k + 3)] * wb1 + D[r + 9 * (k + 6)] * wb2;
+        }
+        double* dst = dst_b + static_cast<std::ptrdiff_t>(3 * k + i) * c;
+        const double t0 = t[0], t1 = t[1], t2 = t[2];
+        for (int a = a0; a < c; ++a) dst[a] += g0[a] * t0 + g1[a] * t1 + g2[a] * t2;
+      }
+  }
+}
+
+bool cpu_has_avx2_fma() {
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+}
+
+// F of every point of a span: Fs[3 col + r] = Σ_a p_r[a] Gt[a ncol + col] (p_r: the span's
+// gathered control-point coordinates r; Gt: the span's g matrix transposed, ncol = 3 × points;
+// column col = 3 i + j of the 3 x ncol result is column j of F at point i). The sum runs over a
+// in support order with separate multiply and add, vectorised across the columns, so that F is
+// bitwise the per-point sum Σ_a P_a g_aᵀ (no FMA): the fibre laws have a kink at λ = 1 that a
+// rest or rigidly moved solid sits on, and their tangent must not depend on rounding there.
+void calc_span_gradients_sequential(const double* Gt, int c, int ncol, const double* p0,
+                                    const double* p1, const double* p2, double* Fs) {
+  for (int col = 0; col < 3 * ncol; ++col) Fs[col] = 0.0;
+  for (int a = 0; a < c; ++a) {
+    const double x0 = p0[a], x1 = p1[a], x2 = p2[a];
+    const double* __restrict g = Gt + static_cast<std::ptrdiff_t>(a) * ncol;
+    double* __restrict f = Fs;
+    for (int col = 0; col < ncol; ++col) {
+      const double gv = g[col];
+      const double m0 = gv * x0, m1 = gv * x1, m2 = gv * x2;
+      f[3 * col] += m0;
+      f[3 * col + 1] += m1;
+      f[3 * col + 2] += m2;
+    }
+  }
+}
+// Span forces: f_r[a] += Σ_col G[col c + a] S[3 col + r] (S: w P of each point, 3 x ncol).
+[[gnu::always_inline]] inline void span_forces_body(const double* G, int c, int ncol,
+                                                    const double* S, double* __restrict f0,
+                                                    double* __restrict f1, double* __restrict f2) {
+  for (int col = 0; col < ncol; ++col) {
+    const double* __restrict g = G + static_cast<std::ptrdiff_t>(col) * c;
+    const double s0 = S[3 * col], s1 = S[3 * col + 1], s2 = S[3 * col + 2];
+    for (int a = 0; a < c; ++a) {
+      f0[a] += g[a] * s0;
+      f1[a] += g[a] * s1;
+      f2[a] += g[a] * s2;
+    }
+  }
+}
+__attribute__((target("avx2,fma"))) void span_forces_avx2(const double* G, int c, int ncol,
+                                                           const double* S, double* f0, double* f1,
+                                                           double* f2) {
+  span_forces_body(G, c, ncol, S, f0, f1, f2);
+}
+void span_forces_generic(const double* G, int c, int ncol, const double* S, double* f0, double* f1,
+                         double* f2) {
+  span_forces_body(G, c, ncol, S, f0, f1, f2);
+}
+
+__attribute__((target("avx2,fma"))) void accumulate_tangent_avx2(const double* gcols, int c,
+                                                                  const double* D, double w,
+                                                                  bool lower_only, double* Kl) {
+  accumulate_tangent_body(gcols, c, D, w, lower_only, Kl);
+}
+
+void accumulate_tangent_generic(const double* gcols, int c, const double* D, double w,
+                                bool lower_only, double* Kl) {
+  accumulate_tangent_body(gcols, c, D, w, lower_only, Kl);
+}
+
+
+
+// Scratch of the per-span kernels (one set per calc_forces call).
+struct SpanScratch {
+  std::vector<double> p0, p1, p2, Fs, S, f0, f1, f2, Kl;
+};
+
+// Gathers the span's control points of P (column-major #P x 3) into sc.p0..p2 and computes F of
+// its points into sc.Fs (3 x 3m, column-major: F of point i is columns 3 i .. 3 i + 2).
+void calc_span_gradients(const SolidDynamicsModel& m, const Points3& P, int k, SpanScratch& sc) {
+  const Eigen::MatrixXd& Gt = m.group_gt[k];
+  const int c = static_cast<int>(Gt.cols()), ncol = static_cast<int>(Gt.rows());
+  const int* idx = &m.support_index[m.quadrature[m.group_points[m.group_ptr[k]]].first];
+  const Eigen::Index n = P.rows();
+  const double* px = P.data();
+  sc.p0.resize(c);
+  sc.p1.resize(c);
+  sc.p2.resize(c);
+  for (int a = 0; a < c; ++a) {
+    sc.p0[a] = px[idx[a]];
+    sc.p1[a] = px[n + idx[a]];
+    sc.p2[a] = px[2 * n + idx[a]];
+  }
+  sc.Fs.resize(static_cast<std::size_t>(3) * ncol);
+  calc_span_gradients_sequential(Gt.data(), c, ncol, sc.p0.data(), sc.p1.data(), sc.p2.data(),
+                                 sc.Fs.data());
+}
+
 [[noreturn]] void throw_inverted(const SolidDynamicsModel& m, const QuadraturePoint& q, double J) {
   throw_numerical(
       fmt::format("solid '{}' inverted at material point ({:.4f}, {:.4f}, {:.4f}): det F = {:.3e}",
@@ -194,6 +305,19 @@ Mat9 calc_material_tangent(const SolidDynamicsSpec& s, const QuadraturePoint& q,
 }
 
 }  // namespace
+
+std::vector<double> calc_fibre_stretches(const SolidDynamicsModel& m, const Points3& P) {
+  std::vector<double> out(m.quadrature.size(), 1.0);
+  SpanScratch sc;
+  for (int k = 0; k < static_cast<int>(m.group_g.size()); ++k) {
+    calc_span_gradients(m, P, k, sc);
+    for (int i = 0; i < m.group_ptr[k + 1] - m.group_ptr[k]; ++i) {
+      const int qi = m.group_points[m.group_ptr[k] + i];
+      out[qi] = (Eigen::Map<const Mat3>(sc.Fs.data() + 9 * i) * m.quadrature[qi].fibre_rest).norm();
+    }
+  }
+  return out;
+}
 
 void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Points3& V,
                       double activation, bool with_stiffness, const std::vector<Transform>& X,
@@ -218,72 +342,92 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
     out.energy_J -= m.lumped_mass[i] * s.gravity_m_s2.dot(P.row(i).transpose());
   }
 
-  // Material terms by quadrature.
+  // Material terms by quadrature, one knot span (group of points with one support) at a time:
+  // the span's control points are gathered once, F of all its points is one product with the
+  // span's g matrix, the forces one product back, and the stiffness is accumulated densely over
+  // the span and scattered into the pattern once per span (docs/solid-dynamics.md, Performance).
   const bool any_material = s.hyperelastic || activation > 0.0 ||
                             (with_stiffness && volume_hessian_scale != 0.0);
   const double vmax = s.max_fibre_strain_rate_1_s * s.fibre.lambda_opt;
-  std::vector<Eigen::Matrix<double, 9, 3>> T;  // per support point: Σ_l ∂P/∂F_kl w g_b[l]
-  for (std::size_t qi = 0; any_material && qi < m.quadrature.size(); ++qi) {
-    const QuadraturePoint& q = m.quadrature[qi];
-    const int* idx = &m.support_index[q.first];
-    const Vec3* g = &m.support_g[q.first];
-    const Mat3 F = calc_deformation_gradient(P, idx, g, q.count);
-    const double J = F.determinant();
-    if (!(J > 0.0)) throw_inverted(m, q, J);
-    ForceVelocity fv;
-    if (lambda_start && step_h > 0.0 && !q.tendon && activation > 0.0) {
-      fv.implicit = true;
-      fv.lambda_n = (*lambda_start)[qi];
-      fv.inv_h_vmax = 1.0 / (step_h * vmax);
-    } else if (V.rows() == n && !q.tendon && activation > 0.0) {
-      const Mat3 Fdot = calc_deformation_gradient(V, idx, g, q.count);
-      const Vec3 Fa = F * q.fibre_rest;
-      const double ldot = Fa.dot(Fdot * q.fibre_rest) / Fa.norm();
-      fv.fixed = std::clamp(degroote_force_velocity(ldot / vmax).value, 0.0, 1.8);
+  const int ngroups = static_cast<int>(m.group_g.size());
+  SpanScratch sc, scv;
+  const bool avx2 = cpu_has_avx2_fma();
+  for (int k = 0; any_material && k < ngroups; ++k) {
+    const Eigen::MatrixXd& G = m.group_g[k];
+    const int gp0 = m.group_ptr[k], npts = m.group_ptr[k + 1] - gp0;
+    const QuadraturePoint& q0 = m.quadrature[m.group_points[gp0]];
+    const int c = q0.count;
+    const int* idx = &m.support_index[q0.first];
+    calc_span_gradients(m, P, k, sc);
+    const bool need_fdot = !(lambda_start && step_h > 0.0) && V.rows() == n && activation > 0.0;
+    if (need_fdot) calc_span_gradients(m, V, k, scv);
+    sc.S.resize(static_cast<std::size_t>(9) * npts);
+    if (K) sc.Kl.assign(static_cast<std::size_t>(9) * c * c, 0.0);
+    for (int i = 0; i < npts; ++i) {
+      const int qi = m.group_points[gp0 + i];
+      const QuadraturePoint& q = m.quadrature[qi];
+      const Mat3 F = Eigen::Map<const Mat3>(sc.Fs.data() + 9 * i);
+      const double J = F.determinant();
+      if (!(J > 0.0)) throw_inverted(m, q, J);
+      ForceVelocity fv;
+      if (lambda_start && step_h > 0.0 && !q.tendon && activation > 0.0) {
+        fv.implicit = true;
+        fv.lambda_n = (*lambda_start)[qi];
+        fv.inv_h_vmax = 1.0 / (step_h * vmax);
+      } else if (need_fdot && !q.tendon) {
+        const Mat3 Fdot = Eigen::Map<const Mat3>(scv.Fs.data() + 9 * i);
+        const Vec3 Fa = F * q.fibre_rest;
+        const double ldot = Fa.dot(Fdot * q.fibre_rest) / Fa.norm();
+        fv.fixed = std::clamp(degroote_force_velocity(ldot / vmax).value, 0.0, 1.8);
+      }
+      const StressAndEnergy se = calc_material(s, q, F, activation, fv);
+      out.energy_J += q.weight_m3 * se.energy_density_Pa;
+      out.active_energy_J += q.weight_m3 * se.active_density_Pa;
+      Eigen::Map<Mat3>(sc.S.data() + 9 * i) = q.weight_m3 * se.P;
+      if (!K) continue;
+      // Tangent ∂P/∂F, analytic (with the implicit fv: its viscous part too).
+      Mat9 D = calc_material_tangent(s, q, F, activation, fv);
+      // Volume curvature: ∂cof(F)_ai/∂F_kl = ε_akc ε_ilm F_cm (det F = the volume density).
+      if (volume_hessian_scale != 0.0) {
+        auto eps = [](int a, int b, int c) { return static_cast<double>((a - b) * (b - c) * (c - a)) / 2.0; };
+        for (int l = 0; l < 3; ++l)
+          for (int kk = 0; kk < 3; ++kk)
+            for (int a2 = 0; a2 < 3; ++a2)
+              for (int ii = 0; ii < 3; ++ii) {
+                double v = 0.0;
+                for (int cc = 0; cc < 3; ++cc)
+                  for (int mm = 0; mm < 3; ++mm) v += eps(a2, kk, cc) * eps(ii, l, mm) * F(cc, mm);
+                D(a2 + 3 * ii, kk + 3 * l) += volume_hessian_scale * v;
+              }
+      }
+      const double* gcols = G.data() + static_cast<std::ptrdiff_t>(3 * i) * c;
+      (avx2 ? accumulate_tangent_avx2 : accumulate_tangent_generic)(
+          gcols, c, D.data(), q.weight_m3, m.group_ascending[k] != 0, sc.Kl.data());
     }
-    const StressAndEnergy se = calc_material(s, q, F, activation, fv);
-    out.energy_J += q.weight_m3 * se.energy_density_Pa;
-    out.active_energy_J += q.weight_m3 * se.active_density_Pa;
-    for (int a = 0; a < q.count; ++a)
-      out.force.segment<3>(3 * idx[a]) -= q.weight_m3 * (se.P * g[a]);
+    // f_a = −Σ_q w_q P_q g_qa for the whole span.
+    sc.f0.assign(c, 0.0);
+    sc.f1.assign(c, 0.0);
+    sc.f2.assign(c, 0.0);
+    (avx2 ? span_forces_avx2 : span_forces_generic)(G.data(), c, 3 * npts, sc.S.data(),
+                                                    sc.f0.data(), sc.f1.data(), sc.f2.data());
+    double* fo = out.force.data();
+    for (int a = 0; a < c; ++a) {
+      fo[3 * idx[a]] -= sc.f0[a];
+      fo[3 * idx[a] + 1] -= sc.f1[a];
+      fo[3 * idx[a] + 2] -= sc.f2[a];
+    }
     if (!K) continue;
-    // Tangent ∂P/∂F, analytic (with the implicit fv: its viscous part too).
-    Mat9 D = calc_material_tangent(s, q, F, activation, fv);
-    // Volume curvature: ∂cof(F)_ai/∂F_kl = ε_akc ε_ilm F_cm (det F = the volume density).
-    if (volume_hessian_scale != 0.0) {
-      auto eps = [](int a, int b, int c) { return static_cast<double>((a - b) * (b - c) * (c - a)) / 2.0; };
-      for (int l = 0; l < 3; ++l)
-        for (int k = 0; k < 3; ++k)
-          for (int a2 = 0; a2 < 3; ++a2)
-            for (int i = 0; i < 3; ++i) {
-              double v = 0.0;
-              for (int c = 0; c < 3; ++c)
-                for (int mm = 0; mm < 3; ++mm) v += eps(a2, k, c) * eps(i, l, mm) * F(c, mm);
-              D(a2 + 3 * i, k + 3 * l) += volume_hessian_scale * v;
-            }
-    }
-    // K_ab(i,k) = w Σ_jl g_a[j] ∂P_ij/∂F_kl g_b[l]. T_b (rows i + 3 j, column k) = w Σ_l
-    // ∂P/∂F_kl g_b[l]; then block (a, b) = Σ_j g_a[j] T_b(rows 3 j .. 3 j + 2).
-    T.resize(static_cast<std::size_t>(q.count));
-    for (int b = 0; b < q.count; ++b) {
-      const Vec3 wg = q.weight_m3 * g[b];
-      T[b].noalias() = D.middleCols<3>(0) * wg[0];
-      T[b].noalias() += D.middleCols<3>(3) * wg[1];
-      T[b].noalias() += D.middleCols<3>(6) * wg[2];
-    }
-    // Column k of D.middleCols<3>(3 l) is ∂P/∂F_kl: T_b column k = Σ_l D(:, k + 3 l) w g_b[l].
-    for (int p = m.pair_first[qi]; p < m.pair_first[qi + 1]; ++p) {
+    // Scatter the span's lower blocks (I >= J) into the pattern.
+    for (int p = m.pair_first[m.group_points[gp0]]; p < m.pair_first[m.group_points[gp0] + 1]; ++p) {
       const auto& pr = m.pairs[p];
       const int Jn = idx[pr.b];
-      const Vec3& ga = g[pr.a];
-      const Eigen::Matrix<double, 9, 3>& Tb = T[pr.b];
-      const Mat3 blk = Tb.topRows<3>() * ga[0] + Tb.middleRows<3>(3) * ga[1] + Tb.bottomRows<3>() * ga[2];
       const int deg = m.block_ptr[Jn + 1] - m.block_ptr[Jn];
       double* dst = K + find_value_position(m, Jn, pr.block, 0, 0);
-      for (int k = 0; k < 3; ++k, dst += 3 * deg) {
-        dst[0] += blk(0, k);
-        dst[1] += blk(1, k);
-        dst[2] += blk(2, k);
+      const double* src = sc.Kl.data() + static_cast<std::size_t>(9) * c * pr.b + pr.a;
+      for (int kk = 0; kk < 3; ++kk, dst += 3 * deg) {
+        dst[0] += src[(3 * kk + 0) * c];
+        dst[1] += src[(3 * kk + 1) * c];
+        dst[2] += src[(3 * kk + 2) * c];
       }
     }
   }

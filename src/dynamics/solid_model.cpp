@@ -10,6 +10,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
+#include <map>
 
 namespace fascicle {
 
@@ -308,6 +310,38 @@ SolidDynamicsModel compile_solid_dynamics(const BSplineSolid& rest, const SolidD
       }
   }
   m.pair_first.push_back(static_cast<int>(m.pairs.size()));
+
+  // Quadrature points grouped by identical support (knot spans), in order of first appearance.
+  {
+    std::map<std::vector<int>, int> group_of;
+    std::vector<std::vector<int>> members;
+    for (std::size_t qi = 0; qi < m.quadrature.size(); ++qi) {
+      const QuadraturePoint& q = m.quadrature[qi];
+      std::vector<int> key(m.support_index.begin() + q.first,
+                           m.support_index.begin() + q.first + q.count);
+      const auto [it, inserted] = group_of.emplace(std::move(key), static_cast<int>(members.size()));
+      if (inserted) members.emplace_back();
+      members[it->second].push_back(static_cast<int>(qi));
+    }
+    m.group_ptr.assign(1, 0);
+    for (const std::vector<int>& g : members) {
+      const QuadraturePoint& q0 = m.quadrature[g.front()];
+      Eigen::MatrixXd G(q0.count, 3 * static_cast<int>(g.size()));
+      for (std::size_t i = 0; i < g.size(); ++i) {
+        const QuadraturePoint& q = m.quadrature[g[i]];
+        for (int a = 0; a < q.count; ++a)
+          for (int j = 0; j < 3; ++j) G(a, 3 * static_cast<int>(i) + j) = m.support_g[q.first + a][j];
+      }
+      const auto first = m.support_index.begin() + q0.first;
+      const bool increasing =  // strictly: a repeated index would need both (a, b) and (b, a)
+          std::adjacent_find(first, first + q0.count, std::greater_equal<int>()) == first + q0.count;
+      m.group_ascending.push_back(increasing ? 1 : 0);
+      m.group_gt.push_back(G.transpose());
+      m.group_g.push_back(std::move(G));
+      m.group_points.insert(m.group_points.end(), g.begin(), g.end());
+      m.group_ptr.push_back(static_cast<int>(m.group_points.size()));
+    }
+  }
 
   // Attachments.
   m.fixed.assign(n, 0);

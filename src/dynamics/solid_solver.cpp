@@ -32,31 +32,45 @@ struct SolidDynamicsSolver::Workspace {
   VecX inv_mass;                     // per dof, 0 on fixed
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower> ldlt;
   Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>, Eigen::Lower> llt;
-  bool analysed = false, llt_analysed = false, use_llt = false;
+  Eigen::CholmodSimplicialLLT<Eigen::SparseMatrix<double>, Eigen::Lower> sllt;
+  bool analysed = false, llt_analysed = false, use_llt = false, simplicial = false;
   int factor_age = -1;       // steps since the factorisation (−1: none valid)
   double factor_h = 0.0;     // time step the factorisation was made for
-  VecX solve(const VecX& b) { return use_llt ? VecX(llt.solve(b)) : VecX(ldlt.solve(b)); }
+  VecX solve(const VecX& b) {
+    if (use_llt) return simplicial ? VecX(sllt.solve(b)) : VecX(llt.solve(b));
+    return ldlt.solve(b);
+  }
   // Two right-hand sides in one pass over the factor.
   Eigen::Matrix<double, Eigen::Dynamic, 2> solve2(const VecX& b0, const VecX& b1) {
     Eigen::Matrix<double, Eigen::Dynamic, 2> B(b0.size(), 2);
     B.col(0) = b0;
     B.col(1) = b1;
-    if (use_llt) return llt.solve(B);
+    if (use_llt) return simplicial ? Eigen::Matrix<double, Eigen::Dynamic, 2>(sllt.solve(B))
+                                   : Eigen::Matrix<double, Eigen::Dynamic, 2>(llt.solve(B));
     return ldlt.solve(B);
   }
   double last_potential_J = NAN;  // backward Euler: potential energy at the accepted state
   // Factorises A: supernodal LLᵀ when allowed and positive definite, else LDLᵀ.
-  bool factorise(bool supernodal) {
+  bool factorise(bool supernodal, bool cholmod_simplicial) {
     use_llt = false;
     if (supernodal) {
+      simplicial = cholmod_simplicial;
       if (!llt_analysed) {
-        llt.cholmod().print = 0;  // not positive definite is an expected outcome here
-        llt.cholmod().error_handler = nullptr;
-        llt.analyzePattern(A);
+        // not positive definite is an expected outcome here
+        if (simplicial) {
+          sllt.cholmod().print = 0;
+          sllt.cholmod().error_handler = nullptr;
+          sllt.analyzePattern(A);
+        } else {
+          llt.cholmod().print = 0;
+          llt.cholmod().error_handler = nullptr;
+          llt.analyzePattern(A);
+        }
         llt_analysed = true;
       }
-      llt.factorize(A);
-      if (llt.info() == Eigen::Success) {
+      if (simplicial) sllt.factorize(A);
+      else llt.factorize(A);
+      if ((simplicial ? sllt.info() : llt.info()) == Eigen::Success) {
         use_llt = true;
         return true;
       }
@@ -434,7 +448,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
       for (int p : w.zero_positions) Av[p] = 0.0;
       for (int p : w.diag_positions) Av[p] = 1.0;
       ++rep.factorisations;
-      if (!w.factorise(options_.supernodal)) {
+      if (!w.factorise(options_.supernodal, options_.cholmod_simplicial)) {
         w.factor_age = -1;
         throw_numerical("the backward-Euler system could not be factorised");
       }

@@ -167,6 +167,16 @@ struct SolidDynamicsModel {
   };
   std::vector<BlockPair> pairs;
   std::vector<int> pair_first;
+  // Quadrature points grouped by identical support (one group per knot span), for the per-span
+  // kernels of calc_forces: group k holds the points group_points[group_ptr[k] .. group_ptr[k+1]),
+  // whose support (and block pairs) are those of its first point. group_g[k] is count x 3m
+  // (column-major): column 3 i + j holds component j of g_I at the group's i-th point, over the
+  // support I. group_ascending[k]: the support's control-point indices increase (then the lower
+  // pairs I >= J are the local pairs a >= b).
+  std::vector<int> group_ptr, group_points;
+  std::vector<Eigen::MatrixXd> group_g;
+  std::vector<Eigen::MatrixXd> group_gt;  // the transposes (3m x count), for F
+  std::vector<char> group_ascending;
   std::shared_ptr<const BoundaryVolumeIntegrator> volume_integrator;  // null: volume form
   int size_of_pattern() const { return static_cast<int>(block_row.size()); }
 };
@@ -226,6 +236,8 @@ struct SolverOptions {
                                         //   (lagged Jacobian); refreshed when Newton slows down
   bool supernodal = true;               // CHOLMOD supernodal LLᵀ (falls back to Eigen's LDLᵀ
                                         //   when the matrix is not positive definite)
+  bool cholmod_simplicial = false;      // with supernodal: CHOLMOD's simplicial LLᵀ instead of
+                                        //   its supernodal one (docs/solid-dynamics.md, Performance)
   int max_step_halvings = 6;            // step-size control: failed steps are retried at dt/2
   double explicit_safety = 0.5;         // symplectic Euler: sub-step = safety × 2/ω_max
   double energy_blowup_factor = 1e3;    // error if the energy grows by this factor plus 1 J/kg
