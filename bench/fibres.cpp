@@ -218,9 +218,13 @@ void BM_ValidateArchitecture(benchmark::State& state) {
   opt.count = 100;
   opt.resolution = 16;
   opt.pennation_rad = ao.pennation_rad;
-  // Harmonic: third argument 0 = plain field on the aponeurosis areas, 1 = pennate field.
-  const bool pennate_field = method == FibreMethod::harmonic && state.range(2) == 1;
+  // Harmonic: third argument 0 = plain field on the aponeurosis areas, 1 = pennate field (angle to
+  // the line of action), 2 = pennate field with the angle to the aponeurosis level sets.
+  const bool pennate_field = method == FibreMethod::harmonic && state.range(2) >= 1;
+  const bool to_aponeurosis = method == FibreMethod::harmonic && state.range(2) == 2;
   if (pennate_field) opt.harmonic.pennation_rad = ao.pennation_rad;
+  if (to_aponeurosis)
+    opt.harmonic.pennation_reference = HarmonicOptions::PennationReference::aponeurosis;
   TriMesh apo;
   if (c.aponeurosis) {
     apo = read_mesh(data / c.aponeurosis, LengthUnit::millimetre);
@@ -238,6 +242,7 @@ void BM_ValidateArchitecture(benchmark::State& state) {
   const FibreAnalysis a = analyse_fibres(muscle, used, d.fibres);
   report_validation(state, a, c.ward_m, c.tracts ? data / c.tracts : std::filesystem::path(), d.fibres);
   const std::string variant = method == FibreMethod::template_map ? to_string(tmpl)
+                              : to_aponeurosis                     ? "pennate-field-to-aponeurosis"
                               : pennate_field                      ? "pennate-field"
                                                                    : "plain-field";
   state.SetLabel(std::string(c.name) + " " + to_string(d.method_used) + " " + variant + " " +
@@ -248,7 +253,7 @@ BENCHMARK(BM_ValidateArchitecture)
     ->Iterations(1)
     ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ValidateArchitecture)
-    ->ArgsProduct({benchmark::CreateDenseRange(0, 7, 1), {1}, {0, 1}})
+    ->ArgsProduct({benchmark::CreateDenseRange(0, 7, 1), {1}, {0, 1, 2}})
     ->Iterations(1)
     ->Unit(benchmark::kMillisecond);
 

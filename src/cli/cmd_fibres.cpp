@@ -30,6 +30,7 @@ struct FibresArgs {
   std::string attachments;          // "" (from the other options) or "aponeurosis"
   std::string architecture = "unipennate";
   double pennation_deg = 0.0;       // 0: fixed template rise
+  std::string rise_crossing = "mean-thickness";  // or "mapped-crossing"
   std::string aponeurosis;          // interior insertion aponeurosis mesh
 };
 
@@ -77,6 +78,9 @@ void run_fibres(const FibresArgs& a) {
     throw_usage("--attachments aponeurosis cannot be combined with landmarks or bones");
   const Architecture architecture = parse_architecture(a.architecture);
   opt.pennation_rad = a.pennation_deg * M_PI / 180.0;
+  opt.rise_crossing = a.rise_crossing == "mapped-crossing"
+                          ? DecomposeOptions::RiseCrossing::mapped_crossing
+                          : DecomposeOptions::RiseCrossing::mean_thickness;
   const TriMesh muscle = load_solid(a.mesh, unit);
   Attachments areas;
   if (aponeurosis_areas) {
@@ -173,6 +177,11 @@ void add_fibres_commands(CLI::App& app, Invocation& run) {
                   "Target pennation angle in degrees: sets the pennate templates' rise, and the "
                   "pennate harmonic field with --attachments aponeurosis")
       ->check(CLI::Range(0.0, 89.0));
+  cmd->add_option("--rise-crossing", args->rise_crossing,
+                  "With --pennation-deg and a pennate template: the in-slice distance the rise "
+                  "is computed from, mean-thickness (default) or mapped-crossing (fibres then make "
+                  "the target angle; docs/fibres.md)")
+      ->check(CLI::IsMember({"mean-thickness", "mapped-crossing"}));
   cmd->add_option("--aponeurosis", args->aponeurosis,
                   "Interior insertion aponeurosis mesh (with --attachments aponeurosis)");
   cmd->add_option("--out", args->out, "Output fibres (.vtp)")->required();

@@ -111,3 +111,27 @@ TEST(CliFibres, AponeurosisAttachmentsGivePennateFibres) {
   EXPECT_EQ(r.code, 3) << r.out;
   EXPECT_NE(r.out.find("MG.stl"), std::string::npos) << r.out;
 }
+
+TEST(CliFibres, RiseCrossingRuleIsSelectable) {
+  // With a pennation angle, the mapped-crossing rise makes the TA's pennate fibres run at the
+  // target angle; the default (mean thickness) gives a steeper angle and so shorter fibres
+  // (docs/fibres.md, "Rise from a pennation angle").
+  const auto dir = fascicle::test::scratch_dir("cli_fibres_rise");
+  double length[2] = {0.0, 0.0};
+  const char* rules[2] = {"mean-thickness", "mapped-crossing"};
+  for (int i = 0; i < 2; ++i) {
+    const auto json = (dir / (std::string(rules[i]) + ".json")).string();
+    const FibresCliRun r = run_fibres_cli(
+        "--mesh " + ta_mesh() + " --units mm --template pennate --pennation-deg 9.6 "
+        "--rise-crossing " + rules[i] + " --count 40 --resolution 9 --out " +
+        (dir / "f.vtp").string() + " --report " + json);
+    ASSERT_EQ(r.code, 0) << r.out;
+    std::ifstream in(json);
+    length[i] = nlohmann::json::parse(in)["mean_fibre_length_m"].get<double>();
+  }
+  EXPECT_GT(length[1], 1.05 * length[0]);
+  const FibresCliRun bad = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --template pennate "
+                                          "--pennation-deg 9.6 --rise-crossing chord --out " +
+                                          (dir / "f.vtp").string());
+  EXPECT_EQ(bad.code, 2) << bad.out;
+}
