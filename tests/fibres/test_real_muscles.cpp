@@ -236,12 +236,14 @@ struct WardCase {
   Architecture architecture;
   double pennation_deg;  // Ward et al. 2009
   bool pennate_field = true;  // harmonic: pennate field (else the plain field on the same areas)
+  bool to_aponeurosis = false;  // pennate field: angle to the aponeurosis level sets
 };
 
 std::string describe(const WardCase& w) {
   return cases()[w.muscle].name + " " + to_string(w.method) + " " + to_string(w.fibre_template) +
          (w.architecture_aware ? " (architecture-aware)" : " (fixed rise)") +
-         (w.method == FibreMethod::harmonic && !w.pennate_field ? " plain field" : "");
+         (w.method == FibreMethod::harmonic && !w.pennate_field ? " plain field" : "") +
+         (w.to_aponeurosis ? " angle to aponeurosis" : "");
 }
 
 }  // namespace
@@ -276,6 +278,8 @@ TEST_P(WardFibreLength, MeanFibreLengthWithin25Percent) {
       areas = find_aponeurosis_attachments(muscle, ao);
       if (apo.num_vertices() > 0) set_interior_aponeurosis(muscle, apo, areas);
       if (w.pennate_field) opt.harmonic.pennation_rad = opt.pennation_rad;
+      if (w.to_aponeurosis)
+        opt.harmonic.pennation_reference = HarmonicOptions::PennationReference::aponeurosis;
     }
   }
   const Decomposition d = decompose_muscle(muscle, areas, opt);
@@ -321,4 +325,9 @@ INSTANTIATE_TEST_SUITE_P(
         WardCase{4, kHarmonic, FibreTemplate::parallel, true, kUni, 20.5, false},
         WardCase{6, kHarmonic, FibreTemplate::parallel, true, kBi, 9.6},
         // Soleus as its largest part, the unipennate posterior soleus (Agur et al. 2003).
-        WardCase{0, kHarmonic, FibreTemplate::parallel, true, kUni, 28.3}));
+        WardCase{0, kHarmonic, FibreTemplate::parallel, true, kUni, 28.3},
+        // Pennate field with the angle measured against the aponeurosis level sets.
+        WardCase{0, kHarmonic, FibreTemplate::parallel, true, kUni, 28.3, true, true},
+        WardCase{1, kHarmonic, FibreTemplate::parallel, true, kBi, 9.6, true, true},
+        WardCase{4, kHarmonic, FibreTemplate::parallel, true, kUni, 20.5, true, true},
+        WardCase{6, kHarmonic, FibreTemplate::parallel, true, kBi, 9.6, true, true}));
