@@ -55,20 +55,18 @@ struct MvcScratch {
   std::vector<double> theta, nx, ny, nz;       // per edge: arc and unit plane normal
 };
 
-// 2 asin(l / 2) for a chord 0 <= l <= 2 between unit vectors. Short chords (every edge of a
-// triangle far from x) use the Maclaurin series of asin through y^15 (y = l/2 < 1/8: the first
-// omitted term is below 5e-17 y, i.e. round-off), which the compiler can vectorise; longer ones
-// call std::asin.
-inline double calc_chord_angle(double l) {
-  const double y = 0.5 * std::min(l, 2.0);
-  if (y < 0.125) {
-    const double y2 = y * y;
-    // asin(y) = sum_k (2k)! / (4^k (k!)^2 (2k+1)) y^(2k+1)
-    const double p = 1.0 + y2 * (1.0 / 6.0 + y2 * (3.0 / 40.0 + y2 * (15.0 / 336.0 + y2 * (105.0 / 3456.0 +
-                     y2 * (945.0 / 42240.0 + y2 * (10395.0 / 599040.0 + y2 * (135135.0 / 9676800.0)))))));
-    return 2.0 * y * p;
-  }
-  return 2.0 * std::asin(y);
+// 2 asin(l / 2) for a chord 0 <= l <= 2 between unit vectors, for short chords (every edge of a
+// triangle far from x): the Maclaurin series of asin through y^15 (y = l/2 < 1/8: the first omitted
+// term is below 5e-17 y, i.e. round-off). Branch-free, so the edge loop vectorises; longer chords
+// are redone with std::asin in a second, scalar pass.
+constexpr double kSeriesChord = 0.25;
+inline double calc_short_chord_angle(double l) {
+  const double y = 0.5 * l;
+  const double y2 = y * y;
+  // asin(y) = sum_k (2k)! / (4^k (k!)^2 (2k+1)) y^(2k+1)
+  const double p = 1.0 + y2 * (1.0 / 6.0 + y2 * (3.0 / 40.0 + y2 * (15.0 / 336.0 + y2 * (105.0 / 3456.0 +
+                   y2 * (945.0 / 42240.0 + y2 * (10395.0 / 599040.0 + y2 * (135135.0 / 9676800.0)))))));
+  return 2.0 * y * p;
 }
 
 // The contribution of triangle f to the (unnormalised) mean-value weights w of the point x, with
@@ -121,6 +119,9 @@ bool add_triangle_weights(const Triangles& F, Eigen::Index f, const MvcScratch& 
 // sin/cos. Triangles seen nearly edge-on (|n_i . u_i| <= 1e-6) or nearly containing x use the
 // per-triangle formula (add_triangle_weights), which handles the in-plane and on-triangle cases.
 // The vertex and edge passes run over plain arrays (structure of arrays) so they vectorise.
+// Compiled for AVX-512, AVX2 and the baseline; the loader picks the best the CPU has (GCC function
+// multiversioning). Results may differ between those versions in the last bits (fused multiply-add).
+[[gnu::target_clones("avx512f", "avx2", "default")]]
 VecX calc_mean_value_coordinates(const TriMesh& mesh, const EdgeTable& table, const Vec3& x, MvcScratch& s) {
   const Eigen::Index n = mesh.V.rows();
   const double scale = (mesh.V.colwise().maxCoeff() - mesh.V.colwise().minCoeff()).norm();
@@ -162,17 +163,32 @@ VecX calc_mean_value_coordinates(const TriMesh& mesh, const EdgeTable& table, co
   s.nz.resize(ne);
   const int* ea = table.edge_a.data();
   const int* eb = table.edge_b.data();
+  double* theta = s.theta.data();
+  double* nx = s.nx.data();
+  double* ny = s.ny.data();
+  double* nz = s.nz.data();
+  bool any_long = false;
   for (std::size_t e = 0; e < ne; ++e) {
     const int a = ea[e], b = eb[e];
     const double ax = ux[a], ay = uy[a], az = uz[a], bx = ux[b], by = uy[b], bz = uz[b];
     const double lx = ax - bx, ly = ay - by, lz = az - bz;
-    s.theta[e] = calc_chord_angle(std::sqrt(lx * lx + ly * ly + lz * lz));
+    const double l = std::sqrt(lx * lx + ly * ly + lz * lz);
+    theta[e] = calc_short_chord_angle(l);
+    any_long |= l >= kSeriesChord;
     const double cx = ay * bz - az * by, cy = az * bx - ax * bz, cz = ax * by - ay * bx;
     const double cn = std::sqrt(cx * cx + cy * cy + cz * cz);
     const double inv = cn > 0.0 ? 1.0 / cn : 0.0;
-    s.nx[e] = cx * inv;
-    s.ny[e] = cy * inv;
-    s.nz[e] = cz * inv;
+    nx[e] = cx * inv;
+    ny[e] = cy * inv;
+    nz[e] = cz * inv;
+  }
+  if (any_long) {
+    for (std::size_t e = 0; e < ne; ++e) {
+      const int a = ea[e], b = eb[e];
+      const double lx = ux[a] - ux[b], ly = uy[a] - uy[b], lz = uz[a] - uz[b];
+      const double l = std::sqrt(lx * lx + ly * ly + lz * lz);
+      if (l >= kSeriesChord) theta[e] = 2.0 * std::asin(0.5 * std::min(l, 2.0));
+    }
   }
   for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
     const std::size_t base = static_cast<std::size_t>(f) * 3;
