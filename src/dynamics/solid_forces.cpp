@@ -210,27 +210,46 @@ bool cpu_has_avx2_fma() {
   return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
 }
 
-// F of every point of a span: Fs[3 col + r] = Σ_a p_r[a] Gt[a ncol + col] (p_r: the span's
+// F of every point of a span: Fs[r ncol + col] = Σ_a p_r[a] Gt[a ncol + col] (p_r: the span's
 // gathered control-point coordinates r; Gt: the span's g matrix transposed, ncol = 3 × points;
-// column col = 3 i + j of the 3 x ncol result is column j of F at point i). The sum runs over a
-// in support order with separate multiply and add, vectorised across the columns, so that F is
-// bitwise the per-point sum Σ_a P_a g_aᵀ (no FMA): the fibre laws have a kink at λ = 1 that a
-// rest or rigidly moved solid sits on, and their tangent must not depend on rounding there.
-void calc_span_gradients_sequential(const double* Gt, int c, int ncol, const double* p0,
-                                    const double* p1, const double* p2, double* Fs) {
-  for (int col = 0; col < 3 * ncol; ++col) Fs[col] = 0.0;
+// F_rj at point i is Fs[r ncol + 3 i + j]). The sum runs over a in support order with separate
+// multiply and add (AVX without FMA, or SSE2), vectorised across the columns, so that F is
+// bitwise the per-point sum Σ_a P_a g_aᵀ: the fibre laws have a kink at λ = 1 that a rest or
+// rigidly moved solid sits on, and their tangent must not depend on the rounding there.
+[[gnu::always_inline]] inline void span_gradients_body(const double* Gt, int c, int ncol,
+                                                       const double* p0, const double* p1,
+                                                       const double* p2, double* __restrict Fs) {
+  double* __restrict f0 = Fs;
+  double* __restrict f1 = Fs + ncol;
+  double* __restrict f2 = Fs + 2 * ncol;
+  for (int col = 0; col < ncol; ++col) f0[col] = f1[col] = f2[col] = 0.0;
   for (int a = 0; a < c; ++a) {
     const double x0 = p0[a], x1 = p1[a], x2 = p2[a];
     const double* __restrict g = Gt + static_cast<std::ptrdiff_t>(a) * ncol;
-    double* __restrict f = Fs;
-    for (int col = 0; col < ncol; ++col) {
-      const double gv = g[col];
-      const double m0 = gv * x0, m1 = gv * x1, m2 = gv * x2;
-      f[3 * col] += m0;
-      f[3 * col + 1] += m1;
-      f[3 * col + 2] += m2;
-    }
+    for (int col = 0; col < ncol; ++col) f0[col] += g[col] * x0;
+    for (int col = 0; col < ncol; ++col) f1[col] += g[col] * x1;
+    for (int col = 0; col < ncol; ++col) f2[col] += g[col] * x2;
   }
+}
+__attribute__((target("avx"))) void span_gradients_avx(const double* Gt, int c, int ncol,
+                                                        const double* p0, const double* p1,
+                                                        const double* p2, double* Fs) {
+  span_gradients_body(Gt, c, ncol, p0, p1, p2, Fs);
+}
+void span_gradients_generic(const double* Gt, int c, int ncol, const double* p0, const double* p1,
+                            const double* p2, double* Fs) {
+  span_gradients_body(Gt, c, ncol, p0, p1, p2, Fs);
+}
+bool cpu_has_avx() {
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("avx");
+}
+// F of point i of the span from calc_span_gradients' layout.
+Mat3 get_span_gradient(const std::vector<double>& Fs, int ncol, int i) {
+  Mat3 F;
+  for (int r = 0; r < 3; ++r)
+    for (int j = 0; j < 3; ++j) F(r, j) = Fs[static_cast<std::size_t>(r) * ncol + 3 * i + j];
+  return F;
 }
 // Span forces: f_r[a] += Σ_col G[col c + a] S[3 col + r] (S: w P of each point, 3 x ncol).
 [[gnu::always_inline]] inline void span_forces_body(const double* G, int c, int ncol,
@@ -291,8 +310,8 @@ void calc_span_gradients(const SolidDynamicsModel& m, const Points3& P, int k, S
     sc.p2[a] = px[2 * n + idx[a]];
   }
   sc.Fs.resize(static_cast<std::size_t>(3) * ncol);
-  calc_span_gradients_sequential(Gt.data(), c, ncol, sc.p0.data(), sc.p1.data(), sc.p2.data(),
-                                 sc.Fs.data());
+  (cpu_has_avx() ? span_gradients_avx : span_gradients_generic)(
+      Gt.data(), c, ncol, sc.p0.data(), sc.p1.data(), sc.p2.data(), sc.Fs.data());
 }
 
 [[noreturn]] void throw_inverted(const SolidDynamicsModel& m, const QuadraturePoint& q, double J) {
@@ -313,7 +332,8 @@ std::vector<double> calc_fibre_stretches(const SolidDynamicsModel& m, const Poin
     calc_span_gradients(m, P, k, sc);
     for (int i = 0; i < m.group_ptr[k + 1] - m.group_ptr[k]; ++i) {
       const int qi = m.group_points[m.group_ptr[k] + i];
-      out[qi] = (Eigen::Map<const Mat3>(sc.Fs.data() + 9 * i) * m.quadrature[qi].fibre_rest).norm();
+      out[qi] = (get_span_gradient(sc.Fs, 3 * (m.group_ptr[k + 1] - m.group_ptr[k]), i) *
+                 m.quadrature[qi].fibre_rest).norm();
     }
   }
   return out;
@@ -366,7 +386,7 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
     for (int i = 0; i < npts; ++i) {
       const int qi = m.group_points[gp0 + i];
       const QuadraturePoint& q = m.quadrature[qi];
-      const Mat3 F = Eigen::Map<const Mat3>(sc.Fs.data() + 9 * i);
+      const Mat3 F = get_span_gradient(sc.Fs, 3 * npts, i);
       const double J = F.determinant();
       if (!(J > 0.0)) throw_inverted(m, q, J);
       ForceVelocity fv;
@@ -375,7 +395,7 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
         fv.lambda_n = (*lambda_start)[qi];
         fv.inv_h_vmax = 1.0 / (step_h * vmax);
       } else if (need_fdot && !q.tendon) {
-        const Mat3 Fdot = Eigen::Map<const Mat3>(scv.Fs.data() + 9 * i);
+        const Mat3 Fdot = get_span_gradient(scv.Fs, 3 * npts, i);
         const Vec3 Fa = F * q.fibre_rest;
         const double ldot = Fa.dot(Fdot * q.fibre_rest) / Fa.norm();
         fv.fixed = std::clamp(degroote_force_velocity(ldot / vmax).value, 0.0, 1.8);
