@@ -97,8 +97,12 @@ class LdlFactor {
     cholmod_start(&c_);
     c_.supernodal = CHOLMOD_SIMPLICIAL;
     c_.final_ll = 0;
-    c_.nmethods = 1;
+    // the fill-reducing ordering with the fewest flops among AMD and METIS nested dissection
+    // (a particle lattice is a fibre chain times a cross-section graph: nested dissection often
+    // wins there)
+    c_.nmethods = 2;
     c_.method[0].ordering = CHOLMOD_AMD;
+    c_.method[1].ordering = CHOLMOD_METIS;
     c_.print = 0;
   }
   ~LdlFactor() {
@@ -264,6 +268,19 @@ struct MusclePair {
   double allowed_m = 0.0;
 };
 
+// Candidate pairs of contact particles of different muscles (a Verlet list, Verlet 1967): every
+// pair closer than muscle_margin_m + skin when the list was built. The list is rebuilt only once
+// some contact particle has moved more than skin/2 since then, so every pair closer than the
+// margin now is in it; between rebuilds a detection is one pass over the list instead of a k-d
+// tree build and one radius query per particle.
+struct PairCandidates {
+  std::vector<int> ids;          // contact particles of all muscles (model indices)
+  Points3 built_at;              // their positions at the last build (#ids x 3)
+  std::vector<MusclePair> list;  // p < q, allowed = min(margin, rest distance), sorted by (p, q)
+  bool valid = false;
+  int builds = 0;                // since the solver was made (diagnostics)
+};
+
 struct FibresFirstSolver::Workspace {
   std::vector<std::unique_ptr<MuscleSystem>> systems;  // per muscle
   // bone contacts, per particle (bone -1: none); targets fixed in the bone's rest frame
@@ -273,6 +290,7 @@ struct FibresFirstSolver::Workspace {
   std::vector<VecX> clearance;      // per bone: its distance to the bone then (inside: -depth)
   std::vector<MusclePair> pairs;
   std::unordered_set<long long> pair_keys;
+  PairCandidates candidates;
   Points3 pair_target;           // per particle: mean pair target this iteration
   std::vector<int> pair_count;   // per particle
   Points3 previous, velocity;
@@ -336,6 +354,7 @@ void FibresFirstSolver::reset() {
   std::fill(ws.contact_bone.begin(), ws.contact_bone.end(), -1);
   ws.pairs.clear();
   ws.pair_keys.clear();
+  ws.candidates.valid = false;
   ws.has_previous = false;
   ws.correction.resize(0, 3);
   ws.checked_at.assign(model_.num_bones(), model_.rest);
@@ -414,44 +433,70 @@ int detect_bone_contacts(const FrameContext& c, const Points3& x, std::vector<in
   return added;
 }
 
-// Finds surface particles of different muscles closer than min(muscle margin, rest distance);
-// adds new pairs when `add`; returns the number added and the largest shortfall per muscle.
-int detect_muscle_pairs(const FibresFirstModel& model, const Points3& x,
+// Brings the candidate list up to date for positions x (see PairCandidates).
+void refresh_pair_candidates(const FibresFirstModel& model, const Points3& x, PairCandidates& c) {
+  const double margin = model.options.muscle_margin_m, skin = model.options.pair_list_skin_m;
+  if (c.ids.empty())
+    for (const FibreBundle& m : model.muscles)
+      c.ids.insert(c.ids.end(), m.contact_particles.begin(), m.contact_particles.end());
+  const Eigen::Index n = static_cast<Eigen::Index>(c.ids.size());
+  if (c.valid) {
+    const double limit2 = 0.25 * skin * skin;
+    bool moved = false;
+    for (Eigen::Index j = 0; j < n && !moved; ++j)
+      moved = (x.row(c.ids[j]) - c.built_at.row(j)).squaredNorm() > limit2;
+    if (!moved) return;
+  }
+  c.built_at.resize(n, 3);
+  for (Eigen::Index j = 0; j < n; ++j) c.built_at.row(j) = x.row(c.ids[j]);
+  const PointCloud cloud{c.built_at};
+  PointTree tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(12));
+  tree.buildIndex();
+  c.list.clear();
+  std::vector<std::pair<std::size_t, double>> hits;
+  nanoflann::SearchParams params;
+  params.sorted = false;
+  const double radius = margin + skin;
+  for (Eigen::Index j = 0; j < n; ++j) {
+    const int p = c.ids[j];
+    const Vec3 xp = c.built_at.row(j);
+    hits.clear();
+    tree.radiusSearch(xp.data(), radius * radius, hits, params);
+    for (const auto& [k, d2] : hits) {
+      const int q = c.ids[k];
+      if (q <= p || model.muscle_of[q] == model.muscle_of[p]) continue;
+      const double allowed = std::min(margin, (model.rest.row(p) - model.rest.row(q)).norm());
+      if (allowed > 1e-12) c.list.push_back({p, q, allowed});
+    }
+  }
+  std::sort(c.list.begin(), c.list.end(),
+            [](const MusclePair& a, const MusclePair& b) { return a.p != b.p ? a.p < b.p : a.q < b.q; });
+  c.valid = true;
+  ++c.builds;
+}
+
+// Finds contact particles of different muscles closer than min(muscle margin, rest distance)
+// (from the candidate list, refreshed when needed); adds new pairs when `add`; returns the number
+// added and the largest shortfall per muscle.
+int detect_muscle_pairs(const FibresFirstModel& model, const Points3& x, PairCandidates& candidates,
                         std::vector<MusclePair>& pairs, std::unordered_set<long long>& keys,
                         bool add, std::vector<double>* max_overlap_per_muscle) {
   const double margin = model.options.muscle_margin_m;
   if (model.muscles.size() < 2 || margin <= 0.0) return 0;
-  std::vector<int> ids;
-  for (const FibreBundle& m : model.muscles)
-    ids.insert(ids.end(), m.contact_particles.begin(), m.contact_particles.end());
-  Points3 S(ids.size(), 3);
-  for (std::size_t j = 0; j < ids.size(); ++j) S.row(j) = x.row(ids[j]);
-  const PointCloud cloud{S};
-  PointTree tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(12));
-  tree.buildIndex();
+  refresh_pair_candidates(model, x, candidates);
   int added = 0;
-  std::vector<std::pair<std::size_t, double>> hits;
-  nanoflann::SearchParams params;
-  params.sorted = false;
   const long long N = model.num_particles();
-  for (std::size_t j = 0; j < ids.size(); ++j) {
-    const int p = ids[j];
-    const Vec3 xp = S.row(j);
-    hits.clear();
-    tree.radiusSearch(xp.data(), margin * margin, hits, params);
-    for (const auto& [k, d2] : hits) {
-      const int q = ids[k];
-      if (q <= p || model.muscle_of[q] == model.muscle_of[p]) continue;
-      const double allowed = std::min(margin, (model.rest.row(p) - model.rest.row(q)).norm());
-      const double shortfall = allowed - std::sqrt(d2);
-      if (shortfall <= 1e-12) continue;
-      if (max_overlap_per_muscle)
-        for (int mm : {model.muscle_of[p], model.muscle_of[q]})
-          (*max_overlap_per_muscle)[mm] = std::max((*max_overlap_per_muscle)[mm], shortfall);
-      if (add && keys.insert(p * N + q).second) {
-        pairs.push_back({p, q, allowed});
-        ++added;
-      }
+  for (const MusclePair& c : candidates.list) {
+    const double d2 = (x.row(c.p) - x.row(c.q)).squaredNorm();
+    if (d2 >= c.allowed_m * c.allowed_m) continue;
+    const double shortfall = c.allowed_m - std::sqrt(d2);
+    if (shortfall <= 1e-12) continue;
+    if (max_overlap_per_muscle)
+      for (int mm : {model.muscle_of[c.p], model.muscle_of[c.q]})
+        (*max_overlap_per_muscle)[mm] = std::max((*max_overlap_per_muscle)[mm], shortfall);
+    if (add && keys.insert(c.p * N + c.q).second) {
+      pairs.push_back(c);
+      ++added;
     }
   }
   return added;
@@ -685,7 +730,7 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
   };
   auto push_pairs_apart = [&] {
     for (int pass = 0; pass < 3; ++pass) {  // Gauss-Seidel passes over the pairs
-      detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
+      detect_muscle_pairs(model, x, ws.candidates, ws.pairs, ws.pair_keys, true, nullptr);
       bool moved = false;
       for (const MusclePair& pr : ws.pairs) {
         const Vec3 d = x.row(pr.p) - x.row(pr.q);
@@ -794,6 +839,8 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
         }
       }
     }
+    const double rest_line_length = line.rows() >= 2 ? detail::calc_line_length(m.rest_action_line) : 0.0;
+    const double line_length = line.rows() >= 2 ? detail::calc_line_length(line) : 0.0;
     for (int p = m.first_particle; p < m.first_particle + m.num_particles; ++p) {
       if (model.role[p] == ParticleRole::fixed) {
         x.row(p) = (motions[model.fixed_bone[p]] * Vec3(model.rest.row(p).transpose())).transpose();
@@ -801,9 +848,14 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
       }
       if (model.role[p] == ParticleRole::carried) {
         // the rest offset from the line, turned by the minimal rotation of the line's tangent
+        // the point of the current line: the same arc length from the nearer end (tendon) or
+        // the same fraction
+        const double s0 = model.line_fraction[p];
+        const double s = o.carry_inextensible_tendon ? detail::calc_tendon_fraction(s0, rest_line_length, line_length)
+                                                     : s0;
         Vec3 c0, t0, c, t;
-        detail::calc_line_point(m.rest_action_line, model.line_fraction[p], c0, t0);
-        detail::calc_line_point(line, model.line_fraction[p], c, t);
+        detail::calc_line_point(m.rest_action_line, s0, c0, t0);
+        detail::calc_line_point(line, s, c, t);
         const Eigen::Quaterniond turn = t.squaredNorm() > 0.0 && t0.squaredNorm() > 0.0
                                             ? Eigen::Quaterniond::FromTwoVectors(t0, t)
                                             : Eigen::Quaterniond::Identity();
@@ -843,7 +895,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
   ws.pair_keys.clear();
   detect_bone_contacts(ctx, x, ws.contact_bone, ws.contact_target_rest, ws.contact_normal_rest,
                        ws.checked_at, ws.clearance, true, nullptr);
-  detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
+  detect_muscle_pairs(model, x, ws.candidates, ws.pairs, ws.pair_keys, true, nullptr);
 
   const int nm = static_cast<int>(model.muscles.size());
   std::vector<double> steps(nm, 0.0);
@@ -912,7 +964,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
     const int added = detect_bone_contacts(ctx, x, ws.contact_bone, ws.contact_target_rest,
                                            ws.contact_normal_rest, ws.checked_at, ws.clearance,
                                            true, nullptr) +
-                      detect_muscle_pairs(model, x, ws.pairs, ws.pair_keys, true, nullptr);
+                      detect_muscle_pairs(model, x, ws.candidates, ws.pairs, ws.pair_keys, true, nullptr);
     if (added == 0) break;
   }
 
@@ -927,7 +979,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
                        false, &depth);
   std::vector<MusclePair> no_pairs;
   std::unordered_set<long long> no_keys;
-  detect_muscle_pairs(model, x, no_pairs, no_keys, false, &overlap);
+  detect_muscle_pairs(model, x, ws.candidates, no_pairs, no_keys, false, &overlap);
   for (int mi = 0; mi < nm; ++mi) {
     const FibreBundle& m = model.muscles[mi];
     FibreBundleFrame& fr = frames[mi];

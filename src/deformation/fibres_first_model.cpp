@@ -117,7 +117,7 @@ void check_options(const FibresFirstOptions& o) {
   if (!positive(o.density_kg_per_m3) || !positive(o.contact_weight) || !positive(o.step_tolerance) ||
       !positive(o.volume_tolerance) || !positive(o.max_volume_error) ||
       !positive(o.default_time_step_s) || !(o.damping_per_s >= 0.0) || !(o.bone_margin_m >= 0.0) ||
-      !(o.muscle_margin_m >= 0.0) || !(o.muscle_contact_band >= 0.0) || !(o.end_attachment_distance_m >= 0.0) ||
+      !(o.muscle_margin_m >= 0.0) || !(o.muscle_contact_band >= 0.0) || !(o.pair_list_skin_m >= 0.0) || !(o.end_attachment_distance_m >= 0.0) ||
       !(o.bone_attachment_distance_m >= 0.0) || !(std::abs(o.blend_a) <= 1.0))
     throw_bad_input("invalid fibres-first options (density, weights, tolerances and time step must be "
                 "> 0; damping, margins and distances >= 0; |blend_a| <= 1)");

@@ -58,6 +58,22 @@ inline double calc_line_fraction(const Points3& line, const Vec3& p) {
   return total > 0.0 ? best_s / total : 0.0;
 }
 
+// Length of polyline `line`.
+inline double calc_line_length(const Points3& line) {
+  double total = 0.0;
+  for (Eigen::Index k = 0; k + 1 < line.rows(); ++k) total += (line.row(k + 1) - line.row(k)).norm();
+  return total;
+}
+
+// Arc-length fraction on a line of length `length` of the point whose rest fraction on a line of
+// length `rest_length` was s, when the arc length from the nearer end (in the rest pose) is kept:
+// an inextensible tendon between the point and that end. Clamped to [0, 1].
+inline double calc_tendon_fraction(double s, double rest_length, double length) {
+  if (!(length > 0.0)) return s;
+  const double kept = s <= 0.5 ? s * rest_length / length : 1.0 - (1.0 - s) * rest_length / length;
+  return std::clamp(kept, 0.0, 1.0);
+}
+
 // The point of polyline `line` (>= 2 rows) at arc-length fraction s, and the unit direction of
 // the segment it lies on (zero for a degenerate line).
 inline void calc_line_point(const Points3& line, double s, Vec3& point, Vec3& tangent) {

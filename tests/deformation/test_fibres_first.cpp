@@ -149,8 +149,9 @@ TEST(FibresFirst, StretchedFibreSettlesToTheAnalyticEquilibrium) {
 }
 
 // A belly from the bottom slab to 30 mm short of the top one: its distal ends are too far from
-// the top slab to be fixed to it, so they are carried along the action line (a tendon) at their
-// rest arc-length fraction 0.05 / 0.08, not rigidly with the slab.
+// the top slab to be fixed to it, so they are carried along the action line (a tendon), not
+// rigidly with the slab: by default at their rest arc length from the nearer (top) end, 30 mm (an
+// inextensible tendon), or at their rest arc-length fraction 0.05 / 0.08.
 TEST(FibresFirst, FarEndsAreCarriedAlongTheActionLine) {
   const EndBones bones(0.08);
   FibreBundleSpec spec{"belly", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), 0.05, 3, 3, 0.004), 0, 1};
@@ -167,21 +168,47 @@ TEST(FibresFirst, FarEndsAreCarriedAlongTheActionLine) {
     EXPECT_EQ(model.role[f * P + P - 1], ParticleRole::carried);
     EXPECT_NEAR(model.line_fraction[f * P + P - 1], 0.625, 1e-12);
   }
-  // the top slab moves 20 mm up: the line's point at 0.625 moves 12.5 mm, given or derived
+  // the top slab moves 20 mm up: with the tendon rule the ends keep their 30 mm to the top and
+  // move 20 mm; with the fraction rule the line's point at 0.625 moves 12.5 mm; given or derived
   Points3 longer(2, 3);
   longer << 0, 0, 0, 0, 0, 0.10;
-  for (bool given : {true, false}) {
-    FibresFirstSolver solver(model);
-    FibresFirstInput input{{Transform::Identity(), translation(Vec3(0, 0, 0.02))}};
-    if (given) input.action_lines = {longer};
-    solver.calc_frame(input);
-    const Points3& x = solver.get_particles();
-    for (int f = 0; f < 9; ++f) {
-      const Vec3 expected = model.rest.row(f * P + P - 1).transpose() + Vec3(0, 0, 0.0125);
-      EXPECT_LT((x.row(f * P + P - 1).transpose() - expected).norm(), 1e-12) << given;
-      EXPECT_EQ(x.row(f * P), model.rest.row(f * P));
+  EXPECT_TRUE(FibresFirstOptions{}.carry_inextensible_tendon);
+  for (bool tendon : {true, false}) {
+    FibresFirstOptions ot = o;
+    ot.carry_inextensible_tendon = tendon;
+    const FibresFirstModel mt = build_fibres_first_model({spec}, bones.list(), ot);
+    for (bool given : {true, false}) {
+      FibresFirstSolver solver(mt);
+      FibresFirstInput input{{Transform::Identity(), translation(Vec3(0, 0, 0.02))}};
+      if (given) input.action_lines = {longer};
+      solver.calc_frame(input);
+      const Points3& x = solver.get_particles();
+      for (int f = 0; f < 9; ++f) {
+        const Vec3 expected = mt.rest.row(f * P + P - 1).transpose() + Vec3(0, 0, tendon ? 0.02 : 0.0125);
+        EXPECT_LT((x.row(f * P + P - 1).transpose() - expected).norm(), 1e-12) << given << tendon;
+        EXPECT_EQ(x.row(f * P), mt.rest.row(f * P));
+      }
+      EXPECT_LT(solver.get_muscles()[0].relative_volume_error, 1e-3);
     }
-    EXPECT_LT(solver.get_muscles()[0].relative_volume_error, 1e-3);
+  }
+  // the tendon rule from the origin side: a belly whose proximal ends are carried (fraction 0.25
+  // of a 80 mm line, 20 mm from the bottom) keeps them 20 mm from the line's start when the line
+  // shortens by 10 mm
+  {
+    const EndBones far(0.08);
+    FibreBundleSpec upper{"upper", make_bundle(Vec3(0, 0, 0.02), Vec3::UnitZ(), Vec3::UnitX(), 0.06, 3, 3, 0.004), 0, 1};
+    upper.action_line = line;
+    const FibresFirstModel mu = build_fibres_first_model({upper}, far.list(), o);
+    EXPECT_EQ(mu.role[0], ParticleRole::carried);
+    EXPECT_NEAR(mu.line_fraction[0], 0.25, 1e-12);
+    Points3 shorter(2, 3);
+    shorter << 0, 0, 0, 0, 0, 0.07;
+    FibresFirstSolver solver(mu);
+    FibresFirstInput input{{Transform::Identity(), translation(Vec3(0, 0, -0.01))}};
+    input.action_lines = {shorter};
+    solver.calc_frame(input);
+    for (int f = 0; f < 9; ++f)
+      EXPECT_LT((solver.get_particles().row(f * P).transpose() - mu.rest.row(f * P).transpose()).norm(), 1e-12);
   }
   // the line turned by 90 deg about x through the origin: the end layer turns with it
   Points3 turned(2, 3);

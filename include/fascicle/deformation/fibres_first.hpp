@@ -59,6 +59,10 @@ struct FibresFirstOptions {
   // bone_attachment_distance_m of its muscle's origin or insertion bone is fixed to the nearer one
   // (seed 002's rule; 0: off).
   double end_attachment_distance_m = std::numeric_limits<double>::infinity();
+  // How a carried end moves along the action line: true keeps its rest arc length from the
+  // nearer end of the line (an inextensible tendon between the belly end and that end's bone);
+  // false keeps its rest arc-length fraction (the tendon stretches with the whole line).
+  bool carry_inextensible_tendon = true;
   double bone_attachment_distance_m = 0.0;
   // Initial guess: free particles move by a blend of the origin and insertion bones' motions
   // since the last frame, weight w(t) = a t^2 - (a+1) t + 1 of the origin bone at normalised fibre
@@ -78,6 +82,11 @@ struct FibresFirstOptions {
   // those within this many mean fibre spacings of the hull's edges (1: about one more layer;
   // on the VH shank 5x the pairs and about 1.5x the time per frame).
   double muscle_contact_band = 0.0;
+  // Skin of the muscle-pair candidate list (a Verlet list): candidates are the contact-particle
+  // pairs closer than muscle_margin_m + this when the list is built, and the list is rebuilt
+  // only once a contact particle has moved more than half of it. Larger: fewer rebuilds, more
+  // candidates to scan; the pairs found are the same for any value >= 0.
+  double pair_list_skin_m = 2e-3;
   double contact_weight = 100.0;  // contact spring = this x along_stiffness
   int max_contact_rounds = 4;     // solve -> detect new contacts -> solve rounds per frame
   // Local/global iterations (projective dynamics) per contact round; stop when the largest
