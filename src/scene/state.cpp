@@ -3,7 +3,6 @@
 
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/parallel.hpp"
-#include "fascicle/deformation/surface_first.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -127,6 +126,9 @@ void calc_muscle_geometry(const Model& model, State& state) {
 
 void calc_muscle_overlaps(const Model& model, State& state) {
   const size_t n = model.muscles.size();
+  MuscleOverlapCache& cache = state.overlap_cache;
+  cache.graph.resize(n);
+  cache.query.resize(n);
   // Broad phase: bounding boxes of the closed surfaces of this frame.
   std::vector<Eigen::AlignedBox3d> box(n);
   std::vector<char> closed(n, 0);
@@ -137,32 +139,43 @@ void calc_muscle_overlaps(const Model& model, State& state) {
     if (!closed[m]) continue;
     box[m] = Eigen::AlignedBox3d(V.colwise().minCoeff().transpose(), V.colwise().maxCoeff().transpose());
   }
-  std::vector<std::vector<int>> others(n);
-  std::vector<char> needs_query(n, 0);
+  // Ordered pairs (a, b): vertices of a inside b, for boxes that meet.
+  std::vector<std::pair<int, int>> pairs;
+  std::vector<char> is_a(n, 0), is_b(n, 0);
   for (size_t a = 0; a < n; ++a)
     for (size_t b = 0; b < n; ++b)
       if (a != b && closed[a] && closed[b] && box[a].intersects(box[b])) {
-        others[a].push_back(static_cast<int>(b));
-        needs_query[b] = 1;
+        pairs.emplace_back(static_cast<int>(a), static_cast<int>(b));
+        is_a[a] = is_b[b] = 1;
       }
-  // Narrow phase: vertices of a inside surface b, exact inside test and distance to b's surface.
-  std::vector<std::unique_ptr<MeshQuery>> query(n);
-  parallel_for(n, [&](size_t b) {
-    if (needs_query[b]) query[b] = std::make_unique<MeshQuery>(TriMesh{state.muscles[b].surface, model.muscles[b].rest_mesh.F});
+  // Per muscle: the edge graph (once per run) and the query of this frame's surface.
+  std::vector<Eigen::AlignedBox3d> padded(n);
+  parallel_for(n, [&](size_t m) {
+    const Points3& V = state.muscles[m].surface;
+    if (is_a[m] && cache.graph[m].start.size() != static_cast<size_t>(V.rows()) + 1)
+      cache.graph[m] = make_surface_graph(model.muscles[m].rest_mesh.F, V.rows());
+    if (!is_b[m]) return;
+    padded[m] = calc_padded_bounding_box(V);
+    // A query kept from an earlier frame is refitted to the new vertices (its answers equal a new
+    // query's, geometry/mesh_query.hpp); the first frame builds it.
+    if (cache.query[m] && cache.query[m]->get_mesh().V.rows() == V.rows() &&
+        cache.query[m]->get_mesh().F.rows() == model.muscles[m].rest_mesh.F.rows())
+      cache.query[m]->update_vertices(V);
+    else
+      cache.query[m] = std::make_unique<MeshQuery>(TriMesh{V, model.muscles[m].rest_mesh.F});
   });
-  parallel_for(n, [&](size_t a) {
-    MuscleFrame& out = state.muscles[a];
-    if (!closed[a]) {
-      out.max_muscle_overlap_m = MuscleFrame::nan;
-      return;
-    }
-    // Inside status propagated along a's edges from vertices outside b's box (one short segment
-    // per vertex instead of a ray vote; same result, deformation/surface_first.hpp).
-    double depth = 0.0;
-    for (int b : others[a])
-      depth = std::max(depth, calc_surface_overlap(out.surface, model.muscles[a].rest_mesh.F, *query[b]).max_depth_m);
-    out.max_muscle_overlap_m = depth;
+  // Narrow phase, in parallel over pairs; each pair's result depends on its two surfaces only.
+  std::vector<double> depth(pairs.size(), 0.0);
+  parallel_for(pairs.size(), [&](size_t k) {
+    const auto [a, b] = pairs[k];
+    depth[k] = calc_muscle_overlap(state.muscles[a].surface, cache.graph[a], *cache.query[b], padded[b]).max_depth_m;
   });
+  for (size_t m = 0; m < n; ++m)
+    state.muscles[m].max_muscle_overlap_m = closed[m] ? 0.0 : MuscleFrame::nan;
+  for (size_t k = 0; k < pairs.size(); ++k) {
+    double& d = state.muscles[pairs[k].first].max_muscle_overlap_m;
+    d = std::max(d, depth[k]);
+  }
 }
 
 void forward(const Model& model, State& state) {

@@ -7,6 +7,7 @@
 #include "fascicle/core/types.hpp"
 #include "fascicle/musculotendon/muscle.hpp"
 #include "fascicle/scene/model.hpp"
+#include "fascicle/scene/overlap.hpp"
 
 #include <limits>
 #include <memory>
@@ -48,6 +49,10 @@ struct State {
   std::vector<std::unique_ptr<RepresentationState>> group_states;  // per Model::muscle_groups
   Stage stage = Stage::none;
   std::optional<SkeletonState> skeleton;   // the skeleton module's per-frame state
+  // The overlap measure's per-muscle edge graphs and surface queries, kept across frames so a
+  // query is refitted, not rebuilt (scene/overlap.hpp). Empty from make_state(); never changes a
+  // result.
+  MuscleOverlapCache overlap_cache;
 };
 
 // A state at the default coordinates, nothing computed; each muscle's representation state made.

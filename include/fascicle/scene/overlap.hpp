@@ -1,0 +1,56 @@
+// Muscle–muscle overlap measure of a scene frame: the deepest vertex of one muscle surface inside
+// another closed muscle surface (MuscleFrame::max_muscle_overlap_m). Measured, not resolved.
+//
+// The inside test is the winding-number propagation of deformation/surface_first.hpp
+// (calc_surface_overlap(V, F, other)): vertices of a outside b's (padded) bounding box have winding
+// number 0; the winding number is carried along a's edges into the box, one short segment crossing
+// count per edge. Here only the part of a's edge graph that can matter is handed to that
+// propagation: a's vertices inside b's box and their direct neighbours outside it, in a's own vertex
+// order, so the propagation visits the same edges in the same order and gives the same numbers as
+// calc_surface_overlap(V, F, other), bit for bit (tests/scene/test_overlap.cpp checks it on Visible
+// Human muscles), at a cost that scales with the vertices in the box instead of all vertices.
+#pragma once
+
+#include "fascicle/core/types.hpp"
+#include "fascicle/geometry/mesh_query.hpp"
+
+#include <memory>
+#include <vector>
+
+namespace fascicle {
+
+// Vertex neighbours of a closed triangle surface in compressed rows, as make_vertex_adjacency
+// (deformation/surface_first.hpp) orders them: neighbours of i are neighbours[start[i] ..
+// start[i+1]); a neighbour may be listed twice.
+struct SurfaceGraph {
+  std::vector<int> start;
+  std::vector<int> neighbours;
+};
+SurfaceGraph make_surface_graph(const Triangles& F, Eigen::Index num_vertices);
+
+// The result of one ordered pair (vertices of a inside surface b).
+struct MuscleOverlap {
+  int vertices_inside = 0;
+  double max_depth_m = 0.0;  // largest distance from an inside vertex of a to surface b
+};
+
+// The bounding box calc_surface_overlap uses to seed the propagation: the vertices' box padded by
+// 1e-9 of its diagonal on every side.
+Eigen::AlignedBox3d calc_padded_bounding_box(const Points3& V);
+
+// Vertices of the closed surface (V, graph) inside the closed surface behind `other`, whose padded
+// box (calc_padded_bounding_box of other's vertices) is `other_box`. Same numbers as
+// calc_surface_overlap(V, F, other) for graph = make_surface_graph(F, V.rows()); falls back to it
+// (per-vertex ray vote) in the same cases.
+MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, const MeshQuery& other,
+                                  const Eigen::AlignedBox3d& other_box);
+
+// What the overlap measure keeps from frame to frame, per muscle (owned by State, created empty by
+// make_state(); filled on first use). Never changes results: a State whose cache is empty and one
+// whose cache was filled by earlier frames measure the same numbers.
+struct MuscleOverlapCache {
+  std::vector<SurfaceGraph> graph;                 // per muscle: edge graph of its rest triangles
+  std::vector<std::unique_ptr<MeshQuery>> query;   // per muscle: query of its latest measured surface
+};
+
+}  // namespace fascicle

@@ -1,0 +1,82 @@
+// Muscle–muscle overlap: winding-number propagation restricted to the vertices in the other box.
+#include "fascicle/scene/overlap.hpp"
+
+#include "fascicle/deformation/surface_first.hpp"
+
+#include <algorithm>
+
+namespace fascicle {
+
+SurfaceGraph make_surface_graph(const Triangles& F, Eigen::Index num_vertices) {
+  VertexAdjacency a = make_vertex_adjacency(F, num_vertices);
+  return SurfaceGraph{std::move(a.start), std::move(a.neighbours)};
+}
+
+Eigen::AlignedBox3d calc_padded_bounding_box(const Points3& V) {
+  Eigen::AlignedBox3d box(V.colwise().minCoeff().transpose(), V.colwise().maxCoeff().transpose());
+  const double pad = 1e-9 * box.diagonal().norm();
+  box.min().array() -= pad;
+  box.max().array() += pad;
+  return box;
+}
+
+MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, const MeshQuery& other,
+                                  const Eigen::AlignedBox3d& other_box) {
+  MuscleOverlap out;
+  const Eigen::Index n = V.rows();
+  // The unknown vertices: those in other's box (every other vertex has winding number 0).
+  std::vector<int> local(static_cast<std::size_t>(n), -1);  // -1: left out; -2: in the box
+  int unknown = 0;
+  for (Eigen::Index i = 0; i < n; ++i)
+    if (other_box.contains(Vec3(V.row(i).transpose()))) {
+      local[i] = -2;
+      ++unknown;
+    }
+  if (unknown == 0) return out;
+  // The sub-graph: unknown vertices plus their known neighbours, kept in a's vertex order. The full
+  // propagation queues every known vertex in that order; known vertices without an unknown
+  // neighbour reach nothing, so leaving them out keeps the visiting order unchanged.
+  std::vector<char> in_box(static_cast<std::size_t>(n), 0);
+  for (Eigen::Index i = 0; i < n; ++i)
+    if (local[i] == -2) {
+      in_box[i] = 1;
+      for (int k = graph.start[i]; k < graph.start[i + 1]; ++k)
+        if (local[graph.neighbours[k]] == -1) local[graph.neighbours[k]] = -3;  // a known neighbour
+    }
+  std::vector<int> keep;
+  keep.reserve(static_cast<std::size_t>(unknown) * 2);
+  for (Eigen::Index i = 0; i < n; ++i)
+    if (local[i] != -1) {
+      local[i] = static_cast<int>(keep.size());
+      keep.push_back(static_cast<int>(i));
+    }
+  const auto m = static_cast<Eigen::Index>(keep.size());
+  Points3 P(m, 3);
+  VertexAdjacency sub;
+  sub.start.assign(static_cast<std::size_t>(m) + 1, 0);
+  sub.neighbours.reserve(static_cast<std::size_t>(m) * 6);
+  std::vector<int> winding(static_cast<std::size_t>(m), 0);
+  for (Eigen::Index l = 0; l < m; ++l) {
+    const int g = keep[l];
+    P.row(l) = V.row(g);
+    winding[l] = in_box[g] ? -1 : 0;
+    // A known vertex's known neighbours are skipped by the propagation: leave them out.
+    for (int k = graph.start[g]; k < graph.start[g + 1]; ++k)
+      if (const int q = local[graph.neighbours[k]]; q >= 0) sub.neighbours.push_back(q);
+    sub.start[l + 1] = static_cast<int>(sub.neighbours.size());
+  }
+  // Same whole-ray budget as calc_surface_overlap (it depends on a's full vertex count).
+  const int max_whole_rays = std::max(64, static_cast<int>(n / 16));
+  if (!propagate_winding(P, sub, other, winding, max_whole_rays)) {
+    const OverlapInfo vote = calc_surface_overlap(V, other);
+    return {vote.vertices_inside, vote.max_depth_m};
+  }
+  for (Eigen::Index l = 0; l < m; ++l) {
+    if (winding[l] <= 0) continue;
+    ++out.vertices_inside;
+    out.max_depth_m = std::max(out.max_depth_m, other.calc_closest_point(P.row(l).transpose()).distance);
+  }
+  return out;
+}
+
+}  // namespace fascicle

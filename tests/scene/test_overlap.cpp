@@ -1,0 +1,141 @@
+// The scene's muscle-muscle overlap measure: equal to deformation's calc_surface_overlap on real
+// (Visible Human) muscles, and unchanged by the per-State cache and by the thread count.
+#include "fascicle/core/parallel.hpp"
+#include "fascicle/deformation/surface_first.hpp"
+#include "fascicle/geometry/primitives.hpp"
+#include "fascicle/io/mesh_io.hpp"
+#include "fascicle/scene/builtins.hpp"
+#include "fascicle/scene/driver.hpp"
+#include "fascicle/scene/overlap.hpp"
+
+#include "test_support.hpp"
+
+#include <gtest/gtest.h>
+
+using namespace fascicle;
+
+namespace {
+
+TriMesh read_vh_muscle(const std::string& name) {
+  return read_mesh(test::data_path("visible_human_female/right/VHF_Right_Muscle_" + name + "_smooth.stl"),
+                   LengthUnit::millimetre);
+}
+
+// Every ordered pair of four neighbouring shank muscles, at rest and with a moved 4 mm towards b
+// (deeper overlaps, more vertices in b's box): the restricted propagation gives exactly
+// calc_surface_overlap's count and depth.
+TEST(MuscleOverlap, EqualsCalcSurfaceOverlapOnVisibleHumanMuscles) {
+  std::vector<TriMesh> meshes;
+  for (const char* name : {"Soleus", "GastrocnemiusMedial", "GastrocnemiusLateral", "TibialisPosterior"})
+    meshes.push_back(read_vh_muscle(name));
+  std::vector<std::unique_ptr<MeshQuery>> query;
+  for (const TriMesh& m : meshes) query.push_back(std::make_unique<MeshQuery>(m));
+  int pairs_with_overlap = 0;
+  long inside_total = 0;
+  for (size_t a = 0; a < meshes.size(); ++a) {
+    const SurfaceGraph graph = make_surface_graph(meshes[a].F, meshes[a].V.rows());
+    for (size_t b = 0; b < meshes.size(); ++b) {
+      if (a == b) continue;
+      const Eigen::AlignedBox3d box = calc_padded_bounding_box(meshes[b].V);
+      const Vec3 towards = (meshes[b].V.colwise().mean() - meshes[a].V.colwise().mean()).transpose().normalized();
+      for (double shift_m : {0.0, 0.004}) {
+        const Points3 V = (meshes[a].V.rowwise() + shift_m * towards.transpose()).eval();
+        const OverlapInfo expected = calc_surface_overlap(V, meshes[a].F, *query[b]);
+        const MuscleOverlap got = calc_muscle_overlap(V, graph, *query[b], box);
+        EXPECT_EQ(got.vertices_inside, expected.vertices_inside) << a << " in " << b << " shift " << shift_m;
+        EXPECT_EQ(got.max_depth_m, expected.max_depth_m) << a << " in " << b << " shift " << shift_m;
+        pairs_with_overlap += expected.vertices_inside > 0;
+        inside_total += expected.vertices_inside;
+      }
+    }
+  }
+  // The comparison is not vacuous: real overlaps were measured.
+  EXPECT_GE(pairs_with_overlap, 6);
+  EXPECT_GT(inside_total, 100);
+}
+
+TEST(MuscleOverlap, NoVertexInTheBoxMeansNoOverlap) {
+  const TriMesh a = make_icosphere(0.01, 2);
+  TriMesh b = a;
+  b.V.col(0).array() += 0.05;
+  const MeshQuery qb(b);
+  const MuscleOverlap r = calc_muscle_overlap(a.V, make_surface_graph(a.F, a.V.rows()), qb,
+                                              calc_padded_bounding_box(b.V));
+  EXPECT_EQ(r.vertices_inside, 0);
+  EXPECT_EQ(r.max_depth_m, 0.0);
+}
+
+// Analytic case: a sphere of radius 1 cm whose centre lies 1.5 cm from another's: the deepest vertex
+// of one inside the other is its vertex nearest the other centre, 1 cm − |0.5 cm| deep (to the
+// icosphere's chord error).
+TEST(MuscleOverlap, TwoSpheresOverlapByTheirLensDepth) {
+  const TriMesh a = make_icosphere(0.01, 4);
+  TriMesh b = a;
+  b.V.col(0).array() += 0.015;
+  const MeshQuery qb(b);
+  const MuscleOverlap r = calc_muscle_overlap(a.V, make_surface_graph(a.F, a.V.rows()), qb,
+                                              calc_padded_bounding_box(b.V));
+  EXPECT_GT(r.vertices_inside, 0);
+  EXPECT_NEAR(r.max_depth_m, 0.005, 1e-4);
+}
+
+// Two ellipsoid muscles side by side across a hinge (they overlap by a few millimetres and the
+// overlap changes with the angle).
+SceneSpec make_overlapping_scene() {
+  SceneSpec s;
+  s.name = "overlap";
+  SceneBodySpec upper{.name = "upper"};
+  upper.mesh = make_box(Vec3(0.02, 0.1, 0.02));
+  upper.mesh->V.col(1).array() += 0.1;
+  SceneBodySpec lower{.name = "lower"};
+  lower.mesh = make_box(Vec3(0.02, 0.1, 0.02));
+  lower.mesh->V.col(1).array() -= 0.1;
+  s.bodies = {upper, lower};
+  SceneJointSpec weld{.name = "fix", .type = "weld", .parent = "ground", .child = "upper"};
+  SceneJointSpec pin{.name = "hinge", .type = "pin", .parent = "upper", .child = "lower"};
+  pin.axis = Vec3::UnitZ();
+  pin.coordinates = {{"angle", 0.0, -M_PI, M_PI}};
+  s.joints = {weld, pin};
+  for (int k = 0; k < 2; ++k) {
+    MuscleSpec m;
+    m.name = k == 0 ? "front" : "side";
+    const double x = 0.03, z = k == 0 ? 0.0 : 0.02;
+    m.origin = {"upper", {Vec3(x, 0.1, z)}, 0.0};
+    m.insertion = {"lower", {Vec3(x, -0.1 + 0.03 * k, z)}, 0.0};
+    m.mesh = make_ellipsoid(Vec3(0.015, 0.09, 0.015), 2);
+    m.mesh->V.col(0).array() += x;
+    m.mesh->V.col(2).array() += z;
+    s.muscles.push_back(m);
+  }
+  return s;
+}
+
+// Reused State (queries refitted frame after frame) vs a fresh State per frame, 1 vs 2 threads:
+// the same overlap numbers, bit for bit.
+TEST(MuscleOverlap, CacheAndThreadCountDoNotChangeResults) {
+  const Model model = compile(make_overlapping_scene(), make_default_registry());
+  std::vector<std::vector<double>> runs;
+  for (int threads : {1, 2}) {
+    ThreadLimit limit(threads);
+    State state = make_state(model);
+    std::vector<double> values;
+    for (int f = 0; f < 8; ++f) {
+      state.q = VecX::Constant(1, -0.15 * f);
+      forward(model, state);
+      State fresh = make_state(model);
+      fresh.muscles = state.muscles;
+      for (MuscleFrame& mf : fresh.muscles) mf.max_muscle_overlap_m = MuscleFrame::nan;
+      calc_muscle_overlaps(model, fresh);
+      for (size_t m = 0; m < model.muscles.size(); ++m) {
+        EXPECT_EQ(fresh.muscles[m].max_muscle_overlap_m, state.muscles[m].max_muscle_overlap_m)
+            << "frame " << f << " muscle " << m;
+        values.push_back(state.muscles[m].max_muscle_overlap_m);
+      }
+    }
+    runs.push_back(values);
+  }
+  EXPECT_EQ(runs[0], runs[1]);
+  EXPECT_GT(*std::max_element(runs[0].begin(), runs[0].end()), 1e-3);  // the muscles do overlap
+}
+
+}  // namespace
