@@ -53,6 +53,8 @@ EdgeTable make_edge_table(const Triangles& F) {
 struct MvcScratch {
   std::vector<double> d, ux, uy, uz;           // per vertex: distance and unit direction from x
   std::vector<double> theta, nx, ny, nz;       // per edge: arc and unit plane normal
+  std::vector<double> contribution;            // per face corner: closed-form weight
+  std::vector<unsigned char> robust;           // per face: needs the per-triangle formula
 };
 
 // 2 asin(l / 2) for a chord 0 <= l <= 2 between unit vectors, for short chords (every edge of a
@@ -190,31 +192,50 @@ VecX calc_mean_value_coordinates(const TriMesh& mesh, const EdgeTable& table, co
       if (l >= kSeriesChord) theta[e] = 2.0 * std::asin(0.5 * std::min(l, 2.0));
     }
   }
-  for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
-    const std::size_t base = static_cast<std::size_t>(f) * 3;
+  // face pass in two parts: the closed-form corner contributions of every face into per-face
+  // arrays (no branches or scatter, so it vectorises with gathers), with a flag for faces that
+  // need the per-triangle formula; then the scatter into w, in face order, with flagged faces
+  // handled in place (same sums in the same order as a single loop)
+  const std::size_t nfaces = static_cast<std::size_t>(mesh.F.rows());
+  s.contribution.resize(3 * nfaces);
+  s.robust.resize(nfaces);
+  const int* F0 = mesh.F.col(0).data();
+  const int* F1 = mesh.F.col(1).data();
+  const int* F2 = mesh.F.col(2).data();
+  const int* opposite = table.opposite.data();
+  const double* edge_sign = table.sign.data();
+  double* contribution = s.contribution.data();
+  unsigned char* robust = s.robust.data();
+  for (std::size_t f = 0; f < nfaces; ++f) {
+    const int corner[3] = {F0[f], F1[f], F2[f]};
     double th[3], nuv[3], nix[3], niy[3], niz[3];
-    int corner[3];
-    bool edge_on = false;
+    bool flag = false;
     for (int i = 0; i < 3; ++i) {
-      const auto e = static_cast<std::size_t>(table.opposite[base + i]);
-      const double sg = table.sign[base + i];
-      corner[i] = mesh.F(f, i);
-      th[i] = s.theta[e];
-      nix[i] = sg * s.nx[e];
-      niy[i] = sg * s.ny[e];
-      niz[i] = sg * s.nz[e];
+      const int e = opposite[3 * f + i];
+      const double sg = edge_sign[3 * f + i];
+      th[i] = theta[e];
+      nix[i] = sg * nx[e];
+      niy[i] = sg * ny[e];
+      niz[i] = sg * nz[e];
       nuv[i] = nix[i] * ux[corner[i]] + niy[i] * uy[corner[i]] + niz[i] * uz[corner[i]];
-      if (!(std::abs(nuv[i]) > 1e-6)) edge_on = true;
+      flag |= !(std::abs(nuv[i]) > 1e-6);
     }
-    if (edge_on || M_PI - 0.5 * (th[0] + th[1] + th[2]) < 1e-6) {
-      if (add_triangle_weights(mesh.F, f, s, w)) return w;  // x on this triangle
-      continue;
-    }
+    flag |= M_PI - 0.5 * (th[0] + th[1] + th[2]) < 1e-6;
+    robust[f] = flag ? 1 : 0;
     const double mx = 0.5 * (th[0] * nix[0] + th[1] * nix[1] + th[2] * nix[2]);
     const double my = 0.5 * (th[0] * niy[0] + th[1] * niy[1] + th[2] * niy[2]);
     const double mz = 0.5 * (th[0] * niz[0] + th[1] * niz[1] + th[2] * niz[2]);
     for (int i = 0; i < 3; ++i)
-      w[corner[i]] += (nix[i] * mx + niy[i] * my + niz[i] * mz) / (d[corner[i]] * nuv[i]);
+      contribution[3 * f + i] = (nix[i] * mx + niy[i] * my + niz[i] * mz) / (d[corner[i]] * nuv[i]);
+  }
+  for (std::size_t f = 0; f < nfaces; ++f) {
+    if (robust[f]) {
+      if (add_triangle_weights(mesh.F, static_cast<Eigen::Index>(f), s, w)) return w;  // x on this triangle
+      continue;
+    }
+    w[F0[f]] += contribution[3 * f];
+    w[F1[f]] += contribution[3 * f + 1];
+    w[F2[f]] += contribution[3 * f + 2];
   }
   const double sum = w.sum();
   if (!(std::abs(sum) > 0.0) || !std::isfinite(sum))
