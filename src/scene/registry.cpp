@@ -10,8 +10,10 @@
 
 namespace fascicle {
 
-// "solid_dynamics" (src/scene/representation_solid_dynamics.cpp, docs/solid-dynamics.md).
-std::unique_ptr<const MuscleRepresentation> make_solid_dynamics(const Model& model, MuscleIndex m);
+// "solid_dynamics" (src/scene/representation_solid_dynamics.cpp, docs/solid-dynamics.md): a group,
+// so that the scene's solid muscles push each other apart.
+std::unique_ptr<const MuscleGroupRepresentation> make_solid_dynamics_group(const Model& model,
+                                                                           const std::vector<MuscleIndex>& muscles);
 
 void throw_unknown_name(const std::string& kind, const std::string& name,
                         const std::vector<std::string>& valid, ErrorContext where) {
@@ -119,8 +121,8 @@ void register_builtins(Registry& r) {
   r.muscle_groups.add("fibres-first", make_fibres_first);
   r.muscle_representations.add("blended_surface", make_blended_surface);
   r.muscle_representations.add("action_line", make_action_line_only);
-  r.muscle_representations.add("solid_dynamics", make_solid_dynamics);
-  r.muscle_representations.add("solid-dynamics", make_solid_dynamics);
+  r.muscle_groups.add("solid_dynamics", make_solid_dynamics_group);
+  r.muscle_groups.add("solid-dynamics", make_solid_dynamics_group);
   r.actuators.add("hill", make_hill_actuator);
   r.actuators.add("none", [](const MuscleSpec&) { return std::unique_ptr<const Actuator>(); });
   r.writers.add("paraview", make_paraview_writer);

@@ -13,6 +13,7 @@
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/parallel.hpp"
 #include "fascicle/deformation/mesh_operators.hpp"
+#include "fascicle/dynamics/contact.hpp"
 #include "fascicle/dynamics/solid_dynamics.hpp"
 #include "fascicle/geometry/mesh_query.hpp"
 #include "fascicle/scene/builtins.hpp"
@@ -28,6 +29,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <exception>
+#include <functional>
 
 namespace fascicle {
 namespace {
@@ -220,6 +223,8 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
 
     make_fibre_grid(m);
     setup_penetration(model, m);
+    rest_box_ = Eigen::AlignedBox3d(m.rest_mesh.V.colwise().minCoeff().transpose(),
+                                    m.rest_mesh.V.colwise().maxCoeff().transpose());
   }
 
   struct Frame final : RepresentationState {
@@ -229,6 +234,8 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
     bool started = false;
     double time_s = 0.0;
     std::vector<Transform> X_prev;  // drivers at the previous frame
+    std::vector<Transform> X_now;   // drivers at this frame (between begin_frame and end_frame)
+    double activation = 0.0, dt = 0.0;
   };
 
   std::unique_ptr<RepresentationState> make_state() const override {
@@ -237,30 +244,61 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
 
   void calc_geometry(const Model& model, MuscleIndex mi, const State& state, RepresentationState* rs,
                      MuscleFrame& out) const override {
+    Frame& frame = get_frame(rs);
+    const int n = begin_frame(model, mi, state, frame, out);
+    for (int k = 0; k < n; ++k) calc_substep(model, frame, k, n, Points3());
+    end_frame(model, state, frame, out);
+  }
+
+  // The per-frame work in three parts, so that a group can step its muscles together and exchange
+  // contact forces between sub-steps. begin_frame: the drivers and activation of this frame; settles
+  // on the first frame (or when time goes backwards) and returns the number of sub-steps to take
+  // (0 when settled or when time stands still).
+  static Frame& get_frame(RepresentationState* rs) {
     auto* frame = dynamic_cast<Frame*>(rs);
     if (!frame) throw_internal("solid_dynamics: the State was not made for this Model (make_state)");
-    const Muscle& m = model.get_muscle(mi);
-    const double a = mi.v < state.activation.size() && std::isfinite(state.activation[mi.v]) ? state.activation[mi.v]
-                                                                                          : m.activation;
-    const std::vector<Transform> X_now = calc_drivers(model, state, out.action_line);
-    const double dt = state.time_s - frame->time_s;
-    if (!frame->started || dt < 0.0) {
-      settle(*frame, X_now, state.time_s);
-    } else if (dt > 0.0) {
-      const int n = std::max(1, static_cast<int>(std::ceil(dt / options_.time_step_s - 1e-9)));
-      StepInputs in;
-      in.excitation = a;
-      for (int k = 0; k < n; ++k) {
-        in.X_now_rest.resize(X_now.size());
-        for (std::size_t d = 0; d < X_now.size(); ++d)
-          in.X_now_rest[d] = interpolate_motion(frame->X_prev[d], X_now[d], static_cast<double>(k + 1) / n);
-        frame->solver.step(dt / n, in);
-      }
-    }
-    frame->X_prev = X_now;
-    frame->time_s = state.time_s;
-    fill_frame(model, state, frame->solver, X_now, out);
+    return *frame;
   }
+
+  int begin_frame(const Model& model, MuscleIndex mi, const State& state, Frame& frame, const MuscleFrame& out) const {
+    const Muscle& m = model.get_muscle(mi);
+    frame.activation = mi.v < state.activation.size() && std::isfinite(state.activation[mi.v]) ? state.activation[mi.v]
+                                                                                               : m.activation;
+    frame.X_now = calc_drivers(model, state, out.action_line);
+    frame.dt = state.time_s - frame.time_s;
+    if (!frame.started || frame.dt < 0.0) {
+      settle(frame, frame.X_now, state.time_s);
+      frame.dt = 0.0;
+      return 0;
+    }
+    return frame.dt > 0.0 ? count_substeps(frame.dt) : 0;
+  }
+
+  int count_substeps(double dt) const {
+    return std::max(1, static_cast<int>(std::ceil(dt / options_.time_step_s - 1e-9)));
+  }
+
+  // Sub-step k of n of the frame, with optional external generalised forces (#P × 3, N).
+  void calc_substep(const Model& model, Frame& frame, int k, int n, const Points3& external) const {
+    StepInputs in;
+    in.excitation = frame.activation;
+    in.external_forces = external;
+    in.X_now_rest.resize(frame.X_now.size());
+    for (std::size_t d = 0; d < frame.X_now.size(); ++d)
+      in.X_now_rest[d] = interpolate_motion(frame.X_prev[d], frame.X_now[d], static_cast<double>(k + 1) / n);
+    frame.solver.step(frame.dt / n, in);
+    project_bone_contact(model, frame.solver, in.X_now_rest);
+  }
+
+  void end_frame(const Model& model, const State& state, Frame& frame, MuscleFrame& out) const {
+    frame.X_prev = frame.X_now;
+    frame.time_s = state.time_s;
+    fill_frame(model, state, frame.solver, frame.X_now, out);
+  }
+
+  const SolidDynamicsModel& get_model() const { return *model_; }
+  // The muscle's rest mesh box (m), for the group's rest-pose adjacency.
+  const Eigen::AlignedBox3d& get_rest_box() const { return rest_box_; }
 
  private:
   // attempt 0: along the origin → insertion axis; 1: the same without the fit's parameter
@@ -397,14 +435,138 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
       else
         offset_fixed_.row(i) = o.transpose();
     }
+    // The whole map in one matrix: x_i = Σ_I (N_I(U_i) + ∇_U N_I(U_i)·dU_i) P_I + fixed offset.
+    surface_map_ = surface_w_[0];
+    for (int d = 0; d < 3; ++d)
+      surface_map_ += (offset_material_.col(d).asDiagonal() * surface_w_[1 + d]).eval();
+    surface_map_.prune(0.0);
     spdlog::debug("muscle '{}': {} of {} surface vertices outside the fitted solid", m.name, outside, rows);
   }
 
-  Points3 calc_surface(const Points3& P) const {
-    Points3 S = surface_w_[0] * P + offset_fixed_;
-    for (int d = 0; d < 3; ++d)
-      S += ((surface_w_[1 + d] * P).array().colwise() * offset_material_.col(d).array()).matrix();
-    return S;
+  Points3 calc_surface(const Points3& P) const { return surface_map_ * P + offset_fixed_; }
+
+  // A surface vertex inside a contact bone beyond its rest depth: world unit normal towards the
+  // bone's closest surface point and the depth beyond the rest contact (m).
+  struct SurfaceContact {
+    Eigen::Index vertex = 0;
+    Vec3 normal = Vec3::Zero();
+    double depth = 0.0;
+  };
+
+  std::vector<SurfaceContact> find_surface_contacts(const Model& model, const Points3& S,
+                                                    const std::vector<Transform>& X) const {
+    std::vector<SurfaceContact> out;
+    for (std::size_t k = 0; k < bone_bodies_.size(); ++k) {
+      const Body& body = model.get_body(bone_bodies_[k]);
+      const Transform& X_now = X[kFirstBoneDriver + k];
+      const Transform X_rest_now = X_now.inverse();
+      const Points3 local = ((S * X_rest_now.linear().transpose()).rowwise() + X_rest_now.translation().transpose()).eval();
+      std::vector<Eigen::Index> in_box;
+      for (Eigen::Index i = 0; i < local.rows(); ++i)
+        if (body.rest_box.contains(local.row(i).transpose())) in_box.push_back(i);
+      if (in_box.empty()) continue;
+      Points3 P(static_cast<Eigen::Index>(in_box.size()), 3);
+      for (std::size_t j = 0; j < in_box.size(); ++j) P.row(static_cast<Eigen::Index>(j)) = local.row(in_box[j]);
+      const VecX sd = body.rest_query->calc_signed_distances(P);
+      for (std::size_t j = 0; j < in_box.size(); ++j) {
+        const Eigen::Index i = in_box[j];
+        const double depth = -sd[static_cast<Eigen::Index>(j)] - rest_depth_[k][i];
+        if (!(depth > kContactTolerance_m)) continue;
+        const Vec3 p = local.row(i).transpose();
+        const Vec3 d = body.rest_query->calc_closest_point(p).point - p;
+        if (!(d.norm() > 0.0)) continue;
+        out.push_back({i, X_now.linear() * d.normalized(), depth});
+      }
+    }
+    return out;
+  }
+
+  // Sliding bone contact as a constraint (seed 000 §4.7), after each step: the smallest
+  // mass-weighted change of the free control points that brings every surface vertex found inside
+  // a bone beyond its rest depth back onto the bone's tangent plane (n·Δx_i ≥ depth_i, push only),
+  // keeping the volume to first order (∇V·ΔP = 0). The vertices are linear in P (x = A P + c), so
+  // with multipliers λ ≥ 0 the change is ΔP = M⁻¹ Aᵀ (n λ); λ from projected Gauss–Seidel on the
+  // rows. Then the inward normal velocity of those vertices is removed the same way (inelastic,
+  // frictionless). Repeated while the new positions reach other triangles of the bone.
+  void project_bone_contact(const Model& model, SolidDynamicsSolver& solver, const std::vector<Transform>& X) const {
+    if (bone_bodies_.empty()) return;
+    const SolidDynamicsModel& sm = solver.get_model();
+    const Eigen::Index n = sm.rest.num_control_points();
+    VecX inv_mass = VecX::Zero(n);
+    for (Eigen::Index I = 0; I < n; ++I)
+      if (!sm.fixed[static_cast<std::size_t>(I)] && sm.lumped_mass[I] > 0.0) inv_mass[I] = 1.0 / sm.lumped_mass[I];
+    SolidState s = solver.get_state();
+    std::vector<SurfaceContact> first;
+    for (int round = 0; round < 4; ++round) {
+      const std::vector<SurfaceContact> contacts = find_surface_contacts(model, calc_surface(s.P), X);
+      if (contacts.empty()) break;
+      if (round == 0) first = contacts;
+      VecX target(static_cast<Eigen::Index>(contacts.size()));
+      for (std::size_t c = 0; c < contacts.size(); ++c) target[static_cast<Eigen::Index>(c)] = contacts[c].depth;
+      const Points3 dP = solve_contact_rows(sm, s, X, contacts, target, inv_mass);
+      // A correction that would invert the solid somewhere is shortened (the penalty of the next
+      // steps does the rest).
+      double scale = 1.0;
+      while (scale > 0.1 && find_inverted_point(sm, s.P + scale * dP)) scale *= 0.5;
+      if (!(scale > 0.1)) break;
+      s.P += scale * dP;
+    }
+    if (first.empty()) return;
+    // Inelastic: no vertex of the contact set keeps moving into the bone.
+    const Points3 v = surface_map_ * s.V;
+    VecX target(static_cast<Eigen::Index>(first.size()));
+    for (std::size_t c = 0; c < first.size(); ++c)
+      target[static_cast<Eigen::Index>(c)] = -first[c].normal.dot(v.row(first[c].vertex).transpose());
+    s.V += solve_contact_rows(sm, s, X, first, target, inv_mass);
+    solver.set_state(std::move(s));
+  }
+
+  // ΔP = M⁻¹ (Σ_c a_c λ_c + ∇V μ) with λ ≥ 0 and a_c·ΔP ≥ target_c (a_c = n_c ⊗ row of the vertex in
+  // the surface map), ∇V·ΔP = 0: projected Gauss–Seidel on the multipliers.
+  Points3 solve_contact_rows(const SolidDynamicsModel& sm, const SolidState& s, const std::vector<Transform>& X,
+                             const std::vector<SurfaceContact>& contacts, const VecX& target,
+                             const VecX& inv_mass) const {
+    const Eigen::Index n = inv_mass.size();
+    Points3 dP = Points3::Zero(n, 3);
+    std::vector<double> diag(contacts.size(), 0.0), lambda(contacts.size(), 0.0);
+    for (std::size_t c = 0; c < contacts.size(); ++c)
+      for (SparseRowMatrix::InnerIterator it(surface_map_, contacts[c].vertex); it; ++it)
+        diag[c] += it.value() * it.value() * inv_mass[it.col()];
+    Points3 g;
+    double g_diag = 0.0;
+    if (sm.spec.volume != VolumeMethod::none) {
+      const ForceEvaluation fe = calc_forces(sm, s.P, s.V, s.activation, false, X);
+      if (fe.volume_gradient.size() == 3 * n) {
+        g = unflatten_points(fe.volume_gradient);
+        for (Eigen::Index I = 0; I < n; ++I) g_diag += inv_mass[I] * g.row(I).squaredNorm();
+      }
+    }
+    double scale = 0.0;
+    for (Eigen::Index c = 0; c < target.size(); ++c) scale = std::max(scale, std::abs(target[c]));
+    if (!(scale > 0.0)) return dP;
+    for (int sweep = 0; sweep < 200; ++sweep) {
+      double change = 0.0;
+      for (std::size_t c = 0; c < contacts.size(); ++c) {
+        if (!(diag[c] > 0.0)) continue;
+        const Vec3& nc = contacts[c].normal;
+        double moved = 0.0;
+        for (SparseRowMatrix::InnerIterator it(surface_map_, contacts[c].vertex); it; ++it)
+          moved += it.value() * nc.dot(dP.row(it.col()).transpose());
+        const double next = std::max(0.0, lambda[c] + (target[static_cast<Eigen::Index>(c)] - moved) / diag[c]);
+        const double delta = next - lambda[c];
+        if (delta == 0.0) continue;
+        lambda[c] = next;
+        for (SparseRowMatrix::InnerIterator it(surface_map_, contacts[c].vertex); it; ++it)
+          dP.row(it.col()) += (inv_mass[it.col()] * it.value() * delta) * nc.transpose();
+        change = std::max(change, std::abs(delta) * diag[c]);
+      }
+      if (g_diag > 0.0) {
+        const double mu = -(g.array() * dP.array()).sum() / g_diag;
+        dP += (inv_mass.asDiagonal() * g * mu).eval();
+      }
+      if (change <= 1e-4 * scale) break;
+    }
+    return dP;
   }
 
   // Iso-parametric curves of the fibre direction on a grid of the cross-section.
@@ -491,16 +653,148 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
   std::vector<Vec3> vertex_material_;            // material point of each rest-mesh vertex
   std::vector<VecX> rest_depth_;                 // per bone: rest depth of each surface vertex
   std::array<SparseRowMatrix, 4> surface_w_;     // basis and its u, v, w derivatives at the vertices
+  Eigen::AlignedBox3d rest_box_;
+  SparseRowMatrix surface_map_;                  // surface vertices = surface_map_ P + offset_fixed_
+  static constexpr double kContactTolerance_m = 1e-6;
   Points3 offset_material_, offset_fixed_;
   SparseRowMatrix fibre_w_;
   int num_fibres_ = 0, fibre_samples_ = 2;
   VecX rest_fibre_length_;
 };
 
+// Runs body(i) for every i in parallel; the first error in index order is rethrown after all
+// have run (deterministic whichever thread fails first).
+void run_each(std::size_t n, const std::function<void(std::size_t)>& body) {
+  std::vector<std::exception_ptr> errors(n);
+  parallel_for(n, [&](std::size_t i) {
+    try {
+      body(i);
+    } catch (...) {
+      errors[i] = std::current_exception();
+    }
+  });
+  for (const auto& e : errors)
+    if (e) std::rethrow_exception(e);
+}
+
+// The scene's solid-dynamics muscles stepped together (seed 000 §4.7: muscles push each other
+// but never pull). Each member is a SolidDynamicsRepresentation; per frame all members take the
+// same number of sub-steps, and before each sub-step the contact forces of every pair that can
+// touch (rest-pose adjacency: rest mesh boxes within muscle_margin; broad phase per sub-step on
+// the control-point boxes, find_contact_pairs) come from calc_muscle_contact (point membership,
+// forces only where one solid's boundary samples are inside the other) and enter the members'
+// steps as external forces. A group of one muscle runs exactly as the muscle alone.
+class SolidDynamicsGroup final : public MuscleGroupRepresentation {
+ public:
+  SolidDynamicsGroup(const Model& model, const std::vector<MuscleIndex>& muscles) {
+    members_.resize(muscles.size());
+    run_each(muscles.size(), [&](std::size_t k) {
+      try {
+        members_[k] = std::make_unique<SolidDynamicsRepresentation>(model, muscles[k]);
+      } catch (const Error& e) {
+        throw e.with_object(model.get_muscle(muscles[k]).name);
+      }
+    });
+    const Muscle& first = model.get_muscle(muscles.front());
+    contact_ = get_option(first, "muscle_contact", 1.0) != 0.0;
+    stiffness_N_m_ = get_option(first, "muscle_contact_stiffness", 200.0);
+    samples_per_span_ = static_cast<int>(get_option(first, "muscle_contact_samples", 2.0));
+    const double margin = get_option(first, "muscle_margin", 0.005);
+    if (!(stiffness_N_m_ >= 0.0) || samples_per_span_ < 1 || !(margin >= 0.0))
+      throw_bad_input("solid_dynamics options: need muscle_contact_stiffness >= 0, muscle_contact_samples >= 1 "
+                      "and muscle_margin >= 0",
+                      {.object = first.name});
+    for (std::size_t i = 0; i < members_.size(); ++i)
+      for (std::size_t j = i + 1; j < members_.size(); ++j) {
+        Eigen::AlignedBox3d a = members_[i]->get_rest_box();
+        a.min().array() -= margin;
+        a.max().array() += margin;
+        if (a.intersects(members_[j]->get_rest_box())) adjacency_.emplace_back(static_cast<int>(i), static_cast<int>(j));
+      }
+    if (!contact_ || stiffness_N_m_ == 0.0) adjacency_.clear();
+    spdlog::debug("solid_dynamics group: {} muscles, {} pairs that can touch", members_.size(), adjacency_.size());
+  }
+
+  struct GroupFrame final : RepresentationState {
+    std::vector<std::unique_ptr<RepresentationState>> members;
+  };
+
+  std::unique_ptr<RepresentationState> make_state() const override {
+    auto s = std::make_unique<GroupFrame>();
+    for (const auto& m : members_) s->members.push_back(m->make_state());
+    return s;
+  }
+
+  void calc_geometry(const Model& model, const std::vector<MuscleIndex>& muscles, const State& state,
+                     RepresentationState* rs, const std::vector<MuscleFrame*>& out) const override {
+    auto* group = dynamic_cast<GroupFrame*>(rs);
+    if (!group || group->members.size() != members_.size())
+      throw_internal("solid_dynamics: the State was not made for this Model (make_state)");
+    const std::size_t nm = members_.size();
+    std::vector<SolidDynamicsRepresentation::Frame*> frames(nm);
+    for (std::size_t k = 0; k < nm; ++k) frames[k] = &SolidDynamicsRepresentation::get_frame(group->members[k].get());
+    std::vector<int> count(nm, 0);
+    run_each(nm, [&](std::size_t k) {
+      try {
+        count[k] = members_[k]->begin_frame(model, muscles[k], state, *frames[k], *out[k]);
+      } catch (const Error& e) {
+        throw e.with_object(model.get_muscle(muscles[k]).name);
+      }
+    });
+    // Common sub-steps: the finest any member asks for (they all span the same frame interval).
+    const int n = *std::max_element(count.begin(), count.end());
+    for (int step = 0; step < n; ++step) {
+      const std::vector<Points3> forces = calc_contact_forces(frames);
+      run_each(nm, [&](std::size_t k) {
+        if (count[k] == 0) return;
+        try {
+          members_[k]->calc_substep(model, *frames[k], step, n, forces[k]);
+        } catch (const Error& e) {
+          throw e.with_object(model.get_muscle(muscles[k]).name);
+        }
+      });
+    }
+    run_each(nm, [&](std::size_t k) { members_[k]->end_frame(model, state, *frames[k], *out[k]); });
+  }
+
+ private:
+  // Contact forces on each member (#P × 3, N; empty when none) from the pairs that overlap now.
+  // Pairs are evaluated in parallel and summed in pair order (deterministic).
+  std::vector<Points3> calc_contact_forces(const std::vector<SolidDynamicsRepresentation::Frame*>& frames) const {
+    std::vector<Points3> forces(frames.size());
+    if (adjacency_.empty()) return forces;
+    std::vector<Points3> P;
+    for (const auto* f : frames) P.push_back(f->solver.get_state().P);
+    const std::vector<std::pair<int, int>> pairs = find_contact_pairs(P, adjacency_);
+    std::vector<MuscleContactResult> results(pairs.size());
+    run_each(pairs.size(), [&](std::size_t c) {
+      const auto [i, j] = pairs[c];
+      results[c] = calc_muscle_contact(members_[i]->get_model(), P[i], members_[j]->get_model(), P[j], stiffness_N_m_,
+                                       samples_per_span_);
+    });
+    for (std::size_t c = 0; c < pairs.size(); ++c) {
+      if (results[c].num_contacts == 0) continue;
+      const auto [i, j] = pairs[c];
+      for (const auto& [k, f] : {std::pair<int, const Points3*>{i, &results[c].forces_a}, {j, &results[c].forces_b}}) {
+        if (forces[k].rows() == 0) forces[k] = Points3::Zero(P[k].rows(), 3);
+        forces[k] += *f;
+      }
+    }
+    return forces;
+  }
+
+  std::vector<std::unique_ptr<const SolidDynamicsRepresentation>> members_;
+  std::vector<std::pair<int, int>> adjacency_;  // members that can touch (rest boxes within the margin)
+  bool contact_ = true;
+  double stiffness_N_m_ = 200.0;
+  int samples_per_span_ = 2;
+};
+
 }  // namespace
 
-std::unique_ptr<const MuscleRepresentation> make_solid_dynamics(const Model& model, MuscleIndex m) {
-  return std::make_unique<SolidDynamicsRepresentation>(model, m);
+std::unique_ptr<const MuscleGroupRepresentation> make_solid_dynamics_group(const Model& model,
+                                                                           const std::vector<MuscleIndex>& muscles) {
+  return std::make_unique<SolidDynamicsGroup>(model, muscles);
 }
 
 }  // namespace fascicle
