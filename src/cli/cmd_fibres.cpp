@@ -31,6 +31,8 @@ struct FibresArgs {
   std::string architecture = "unipennate";
   double pennation_deg = 0.0;       // 0: fixed template rise
   std::string rise_crossing = "mean-thickness";  // or "mapped-crossing"
+  std::string pennation_reference = "line";       // or "aponeurosis"
+  std::string insertion_side;                     // mesh on the insertion (deep) side
   std::string aponeurosis;          // interior insertion aponeurosis mesh
 };
 
@@ -74,6 +76,8 @@ void run_fibres(const FibresArgs& a) {
                                "(Ward et al. 2009)"});
   if (!a.aponeurosis.empty() && !aponeurosis_areas)
     throw_usage("--aponeurosis needs --attachments aponeurosis");
+  if (!aponeurosis_areas && !a.insertion_side.empty())
+    throw_usage("--insertion-side needs --attachments aponeurosis");
   if (aponeurosis_areas && (!a.origin.empty() || !a.bones.empty()))
     throw_usage("--attachments aponeurosis cannot be combined with landmarks or bones");
   const Architecture architecture = parse_architecture(a.architecture);
@@ -94,6 +98,16 @@ void run_fibres(const FibresArgs& a) {
       ao.thickness_direction = calc_sheet_normal(sheet);
       opt.mapping.thickness_direction = ao.thickness_direction;
     }
+    if (!a.insertion_side.empty()) {
+      const TriMesh side = read_mesh(a.insertion_side, unit);
+      if (side.num_vertices() == 0)
+        throw_bad_input("the insertion-side mesh has no vertices", {.file = a.insertion_side});
+      ao.insertion_face_towards =
+          Vec3(side.V.colwise().mean()) - Vec3(muscle.V.colwise().mean());
+      opt.mapping.insertion_side_towards = ao.insertion_face_towards;
+    }
+    if (a.pennation_reference == "aponeurosis")
+      opt.harmonic.pennation_reference = HarmonicOptions::PennationReference::aponeurosis;
     if (opt.method == FibreMethod::template_map) {
       // The template's box follows the muscle's ends; the pennation sets the rise.
       areas = find_end_attachments(muscle, a.end_fraction);
@@ -182,6 +196,14 @@ void add_fibres_commands(CLI::App& app, Invocation& run) {
                   "is computed from, mean-thickness (default) or mapped-crossing (fibres then make "
                   "the target angle; docs/fibres.md)")
       ->check(CLI::IsMember({"mean-thickness", "mapped-crossing"}));
+  cmd->add_option("--pennation-reference", args->pennation_reference,
+                  "With --attachments aponeurosis --method harmonic: the pennation angle is "
+                  "measured against the line of action (line, default) or the aponeuroses")
+      ->check(CLI::IsMember({"line", "aponeurosis"}));
+  cmd->add_option("--insertion-side", args->insertion_side,
+                  "With --attachments aponeurosis: a mesh on the insertion aponeurosis' side (the "
+                  "insertion face is the one towards its centroid; e.g. the tibia for the medial "
+                  "gastrocnemius, whose insertion aponeurosis is deep)");
   cmd->add_option("--aponeurosis", args->aponeurosis,
                   "Interior insertion aponeurosis mesh (with --attachments aponeurosis)");
   cmd->add_option("--out", args->out, "Output fibres (.vtp)")->required();

@@ -135,3 +135,29 @@ TEST(CliFibres, RiseCrossingRuleIsSelectable) {
                                           (dir / "f.vtp").string());
   EXPECT_EQ(bad.code, 2) << bad.out;
 }
+
+TEST(CliFibres, PennationAgainstTheAponeurosesWithTheInsertionOnTheDeepSide) {
+  // Bolsterlee MG, unipennate, insertion face towards the TA (the deep side), 21.8 degrees to the
+  // aponeuroses: fibres cross the 18.9 mm belly, t / sin(a) = 51 mm (docs/fibres.md).
+  const auto dir = fascicle::test::scratch_dir("cli_fibres_reference");
+  const auto json = (dir / "mg.json").string();
+  const std::string mg = fascicle::test::data_path("bolsterlee_dti/MG.stl").string();
+  FibresCliRun r = run_fibres_cli(
+      "--mesh " + mg + " --units mm --attachments aponeurosis --architecture unipennate "
+      "--pennation-deg 21.8 --method harmonic --pennation-reference aponeurosis "
+      "--insertion-side " + ta_mesh() + " --count 30 --resolution 9 --out " +
+      (dir / "mg.vtp").string() + " --report " + json);
+  ASSERT_EQ(r.code, 0) << r.out;
+  std::ifstream in(json);
+  const double length = nlohmann::json::parse(in)["mean_fibre_length_m"].get<double>();
+  EXPECT_GT(length, 0.051 * 0.75);
+  EXPECT_LT(length, 0.051 * 1.25);
+  // Without aponeurosis areas the option is a usage error; an unknown reference too.
+  r = run_fibres_cli("--mesh " + mg + " --units mm --insertion-side " + ta_mesh() + " --out " +
+                     (dir / "x.vtp").string());
+  EXPECT_EQ(r.code, 2) << r.out;
+  r = run_fibres_cli("--mesh " + mg + " --units mm --attachments aponeurosis --pennation-deg 20 "
+                     "--method harmonic --pennation-reference tendon --out " +
+                     (dir / "x.vtp").string());
+  EXPECT_EQ(r.code, 2) << r.out;
+}
