@@ -4,6 +4,7 @@
 #include "fascicle/deformation/surface_first.hpp"
 
 #include <algorithm>
+#include <limits>
 
 namespace fascicle {
 
@@ -71,10 +72,21 @@ MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, c
     const OverlapInfo vote = calc_surface_overlap(V, other);
     return {vote.vertices_inside, vote.max_depth_m};
   }
+  // Depth of the inside vertices. The distance to a surface is 1-Lipschitz, so a vertex whose
+  // measured neighbour bounds its depth (neighbour depth + edge length) below the deepest found so
+  // far cannot change the maximum and is not measured (the margin covers rounding).
+  std::vector<double> bound(static_cast<std::size_t>(m), std::numeric_limits<double>::infinity());
   for (Eigen::Index l = 0; l < m; ++l) {
     if (winding[l] <= 0) continue;
     ++out.vertices_inside;
-    out.max_depth_m = std::max(out.max_depth_m, other.calc_closest_point(P.row(l).transpose()).distance);
+    if (bound[l] * (1.0 + 1e-9) + 1e-15 < out.max_depth_m) continue;
+    const Vec3 p = P.row(l).transpose();
+    const double depth = other.calc_closest_point(p).distance;
+    out.max_depth_m = std::max(out.max_depth_m, depth);
+    for (int k = sub.start[l]; k < sub.start[l + 1]; ++k) {
+      const int q = sub.neighbours[k];
+      bound[q] = std::min(bound[q], depth + (Vec3(P.row(q).transpose()) - p).norm());
+    }
   }
   return out;
 }
