@@ -56,12 +56,15 @@ class FibresFirst final : public MuscleGroupRepresentation {
     o.max_iterations = static_cast<int>(get_option(first, "iterations", o.max_iterations));
     o.max_contact_rounds = static_cast<int>(get_option(first, "contact_rounds", o.max_contact_rounds));
     // Fibre ends within this distance of their bone are fixed to it; the others are carried along
-    // the action line (a tendon), so a tendon-less belly does not turn rigidly with a far bone.
-    // Default: every end fixed (the library's rigid-tendon default). Carrying keeps the rest
-    // arc-length fraction, which on gait2392's generated bellies breaks the 0.5 % volume hold at
-    // the first frame (ext_hal_r 0.54 %), so scenes opt in (examples/vh_shank uses 5 mm).
+    // the action line by a tendon (keeping their rest arc-length fraction; with the option
+    // "inextensible_tendon": 1 their rest arc length from the nearer end of the line), so a
+    // tendon-less belly does not turn rigidly with a far bone. Default: every end fixed (the library's rigid-tendon default): carrying the ends of
+    // gait2392's generated bellies breaks the 0.5 % volume hold at the first frame (ext_hal_r
+    // 0.71 % with the tendon rule, 0.54 % with the arc-length-fraction rule), so scenes opt in
+    // (examples/vh_shank uses 5 mm).
     o.end_attachment_distance_m =
         get_option(first, "end_attachment_distance", std::numeric_limits<double>::infinity());
+    o.carry_inextensible_tendon = get_option(first, "inextensible_tendon", 0.0) != 0.0;
 
     std::vector<FibreBundleSpec> specs;
     for (MuscleIndex mi : muscles) {

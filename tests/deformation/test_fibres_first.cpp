@@ -150,8 +150,8 @@ TEST(FibresFirst, StretchedFibreSettlesToTheAnalyticEquilibrium) {
 
 // A belly from the bottom slab to 30 mm short of the top one: its distal ends are too far from
 // the top slab to be fixed to it, so they are carried along the action line (a tendon), not
-// rigidly with the slab: by default at their rest arc length from the nearer (top) end, 30 mm (an
-// inextensible tendon), or at their rest arc-length fraction 0.05 / 0.08.
+// rigidly with the slab: by default at their rest arc-length fraction 0.05 / 0.08, or, with
+// carry_inextensible_tendon, at their rest arc length from the nearer (top) end, 30 mm.
 TEST(FibresFirst, FarEndsAreCarriedAlongTheActionLine) {
   const EndBones bones(0.08);
   FibreBundleSpec spec{"belly", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), 0.05, 3, 3, 0.004), 0, 1};
@@ -172,7 +172,7 @@ TEST(FibresFirst, FarEndsAreCarriedAlongTheActionLine) {
   // move 20 mm; with the fraction rule the line's point at 0.625 moves 12.5 mm; given or derived
   Points3 longer(2, 3);
   longer << 0, 0, 0, 0, 0, 0.10;
-  EXPECT_TRUE(FibresFirstOptions{}.carry_inextensible_tendon);
+  EXPECT_FALSE(FibresFirstOptions{}.carry_inextensible_tendon);
   for (bool tendon : {true, false}) {
     FibresFirstOptions ot = o;
     ot.carry_inextensible_tendon = tendon;
@@ -198,7 +198,9 @@ TEST(FibresFirst, FarEndsAreCarriedAlongTheActionLine) {
     const EndBones far(0.08);
     FibreBundleSpec upper{"upper", make_bundle(Vec3(0, 0, 0.02), Vec3::UnitZ(), Vec3::UnitX(), 0.06, 3, 3, 0.004), 0, 1};
     upper.action_line = line;
-    const FibresFirstModel mu = build_fibres_first_model({upper}, far.list(), o);
+    FibresFirstOptions ot = o;
+    ot.carry_inextensible_tendon = true;
+    const FibresFirstModel mu = build_fibres_first_model({upper}, far.list(), ot);
     EXPECT_EQ(mu.role[0], ParticleRole::carried);
     EXPECT_NEAR(mu.line_fraction[0], 0.25, 1e-12);
     Points3 shorter(2, 3);

@@ -61,8 +61,10 @@ struct FibresFirstOptions {
   double end_attachment_distance_m = std::numeric_limits<double>::infinity();
   // How a carried end moves along the action line: true keeps its rest arc length from the
   // nearer end of the line (an inextensible tendon between the belly end and that end's bone);
-  // false keeps its rest arc-length fraction (the tendon stretches with the whole line).
-  bool carry_inextensible_tendon = true;
+  // false keeps its rest arc-length fraction (the tendon stretches with the whole line). Not the
+  // default: with carried ends on gait2392 it misses the first frame's volume hold by more than
+  // the fraction rule (docs/representations.md).
+  bool carry_inextensible_tendon = false;
   double bone_attachment_distance_m = 0.0;
   // Initial guess: free particles move by a blend of the origin and insertion bones' motions
   // since the last frame, weight w(t) = a t^2 - (a+1) t + 1 of the origin bone at normalised fibre
