@@ -116,50 +116,6 @@ VecX apply_mass(const Eigen::SparseMatrix<double>& M, const VecX& x) {
   return y;
 }
 
-// y = M x for the consistent mass M = Σ_q ρ w_q N_q N_qᵀ, span by span from the quadrature (the
-// same sum that assembled M, without its 5³–7³ neighbour rows): per point one gathered dot
-// product and one scaled update over its support. Lumped masses use the diagonal matrix.
-VecX apply_mass(const SolidDynamicsModel& m, const VecX& x) {
-  if (m.spec.mass != MassLumping::consistent || m.group_g.empty()) return apply_mass(m.mass_matrix, x);
-  VecX y = VecX::Zero(x.size());
-  std::vector<double> xl, yl;
-  const double rho = m.spec.density_kg_m3;
-  for (std::size_t k = 0; k + 1 < m.group_ptr.size(); ++k) {
-    const QuadraturePoint& q0 = m.quadrature[m.group_points[m.group_ptr[k]]];
-    const int c = q0.count;
-    const int* idx = &m.support_index[q0.first];
-    xl.resize(3 * static_cast<std::size_t>(c));
-    yl.assign(3 * static_cast<std::size_t>(c), 0.0);
-    for (int a = 0; a < c; ++a)
-      for (int r = 0; r < 3; ++r) xl[r * c + a] = x[3 * idx[a] + r];
-    for (int gp = m.group_ptr[k]; gp < m.group_ptr[k + 1]; ++gp) {
-      const QuadraturePoint& q = m.quadrature[m.group_points[gp]];
-      const double* N = &m.support_N[q.first];
-      double s0 = 0.0, s1 = 0.0, s2 = 0.0;
-      for (int a = 0; a < c; ++a) {
-        s0 += N[a] * xl[a];
-        s1 += N[a] * xl[c + a];
-        s2 += N[a] * xl[2 * c + a];
-      }
-      const double w = rho * q.weight_m3;
-      s0 *= w;
-      s1 *= w;
-      s2 *= w;
-      double* __restrict y0 = yl.data();
-      double* __restrict y1 = y0 + c;
-      double* __restrict y2 = y0 + 2 * c;
-      for (int a = 0; a < c; ++a) {
-        y0[a] += s0 * N[a];
-        y1[a] += s1 * N[a];
-        y2[a] += s2 * N[a];
-      }
-    }
-    for (int a = 0; a < c; ++a)
-      for (int r = 0; r < 3; ++r) y[3 * idx[a] + r] += yl[r * c + a];
-  }
-  return y;
-}
-
 VecX apply_lower(const Eigen::SparseMatrix<double>& A, const VecX& x) {
   return A.selfadjointView<Eigen::Lower>() * x;
 }
@@ -308,7 +264,7 @@ StepReport SolidDynamicsSolver::step(double dt, const StepInputs& in) {
       // the volume projection's rounding-level correction) plus the kinetic energy.
       if (options_.integrator != Integrator::symplectic_euler && std::isfinite(ws_->last_potential_J)) {
         const VecX v = flatten_points(trial.V);
-        E = ws_->last_potential_J + 0.5 * v.dot(apply_mass(m, v));
+        E = ws_->last_potential_J + 0.5 * v.dot(apply_mass(m.mass_matrix, v));
       } else {
         E = calc_energies(m, trial, in.X_now_rest).total();
       }
@@ -463,7 +419,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   };
   const double tol = options_.newton_tolerance * w.size_m;
   calc_forces_into(m, unflatten_points(x), V_start, a, false, in.X_now_rest, w.fe, 0.0, fv_from, h);
-  VecX Mdx = apply_mass(m, x - x_tilde);
+  VecX Mdx = apply_mass(m.mass_matrix, x - x_tilde);
   bool factored = false;
   bool converged = false;
   int nonmonotone_left = 3;
@@ -530,7 +486,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     auto accept = [&](const VecX& xt, ForceEvaluation& fe, VecX* Mdx_t) {
       x = xt;
       if (Mdx_t) std::swap(Mdx, *Mdx_t);
-      else Mdx = apply_mass(m, x - x_tilde);
+      else Mdx = apply_mass(m.mass_matrix, x - x_tilde);
       std::swap(w.fe.force, fe.force);
       w.fe.energy_J = fe.energy_J;
       w.fe.active_energy_J = fe.active_energy_J;
@@ -551,7 +507,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
         full_ok = true;
         full_fe = trial_fe;
       }
-      VecX Mdx_t = apply_mass(m, xt - x_tilde);
+      VecX Mdx_t = apply_mass(m.mass_matrix, xt - x_tilde);
       const double phi_t = merit(xt, trial_fe, Mdx_t);
       // The implicit force–velocity term has no potential: a clear drop of the residual is
       // accepted too.
