@@ -78,6 +78,14 @@ struct BinRanges {
   double bin_length = 0.0;
 };
 
+// The face test |n·x| ≥ cos(angle) selects the faces only for an angle in (0, 90°): at 90° or more
+// every vertex passes, including those with a zero normal.
+void require_face_angle(const AponeurosisOptions& o) {
+  if (!(o.face_angle_rad > 0.0 && o.face_angle_rad < 0.5 * M_PI))
+    throw_usage("the face angle must be in (0, 90) degrees",
+                {.suggestion = "give the largest angle between a face's normal and the thickness direction"});
+}
+
 }  // namespace
 
 Attachments find_aponeurosis_attachments(const TriMesh& muscle, const AponeurosisOptions& o) {
@@ -86,6 +94,7 @@ Attachments find_aponeurosis_attachments(const TriMesh& muscle, const Aponeurosi
   if (!(o.end_fraction > 0.0 && o.end_fraction < 0.5))
     throw_usage("the end-region fraction must be in (0, 0.5)");
   if (!(o.sheet_spacing_m > 0.0)) throw_usage("the sheet spacing must be positive");
+  require_face_angle(o);
   // Box: z principal axis, x thickness (least variance across z), y = z x x.
   const auto [ez, ex] = calc_box_axes(muscle, o);
   const Vec3 ey = ez.cross(ex);
@@ -181,6 +190,7 @@ Attachments find_aponeurosis_attachments(const TriMesh& muscle, const Aponeurosi
 }
 
 double calc_face_thickness(const TriMesh& muscle, const AponeurosisOptions& o) {
+  require_face_angle(o);
   const auto [ez, ex] = calc_box_axes(muscle, o);
   const VecX z = muscle.V * ez;
   const double z_hi = z.maxCoeff(), L = z_hi - z.minCoeff();

@@ -205,6 +205,13 @@ TEST(FaceThickness, MatchesTheEllipseChordsAlongTheInwardNormals) {
   std::printf("face thickness %.3f mm, analytic median chord %.3f mm\n", t * 1e3, expected * 1e3);
   EXPECT_NEAR(t, expected, 0.02 * expected);  // the mesh is a 48-gon, not the ellipse
   EXPECT_LE(t, 2 * a * (1 + 1e-9));           // never more than the thickness at y = 0
+  // A face angle outside (0, 90) degrees would select every vertex: a usage error, as in
+  // find_aponeurosis_attachments.
+  for (const double bad : {0.0, 0.5 * M_PI, 2.0, std::nan("")}) {
+    o.face_angle_rad = bad;
+    EXPECT_THROW(calc_face_thickness(m, o), fascicle::Error) << bad;
+    EXPECT_THROW(find_aponeurosis_attachments(m, o), fascicle::Error) << bad;
+  }
 }
 
 TEST(PennateRise, MappedCrossingGivesTheTargetAngleInABox) {
