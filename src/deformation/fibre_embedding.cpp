@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <numeric>
 
 namespace fascicle {
@@ -137,12 +138,13 @@ VecX calc_mean_value_coordinates(const TriMesh& mesh, const EdgeTable& table, co
   const double* vx = mesh.V.col(0).data();
   const double* vy = mesh.V.col(1).data();
   const double* vz = mesh.V.col(2).data();
-  double* d = s.d.data();
-  double* ux = s.ux.data();
-  double* uy = s.uy.data();
-  double* uz = s.uz.data();
+  double* __restrict d = s.d.data();
+  double* __restrict ux = s.ux.data();
+  double* __restrict uy = s.uy.data();
+  double* __restrict uz = s.uz.data();
+  const double x0 = x[0], x1 = x[1], x2 = x[2];
   for (std::size_t j = 0; j < nu; ++j) {
-    const double ex = vx[j] - x[0], ey = vy[j] - x[1], ez = vz[j] - x[2];
+    const double ex = vx[j] - x0, ey = vy[j] - x1, ez = vz[j] - x2;
     d[j] = std::sqrt(ex * ex + ey * ey + ez * ez);
     ux[j] = ex;
     uy[j] = ey;
@@ -165,26 +167,26 @@ VecX calc_mean_value_coordinates(const TriMesh& mesh, const EdgeTable& table, co
   s.nz.resize(ne);
   const int* ea = table.edge_a.data();
   const int* eb = table.edge_b.data();
-  double* theta = s.theta.data();
-  double* nx = s.nx.data();
-  double* ny = s.ny.data();
-  double* nz = s.nz.data();
-  bool any_long = false;
+  double* __restrict theta = s.theta.data();
+  double* __restrict nx = s.nx.data();
+  double* __restrict ny = s.ny.data();
+  double* __restrict nz = s.nz.data();
+  double longest = 0.0;
   for (std::size_t e = 0; e < ne; ++e) {
     const int a = ea[e], b = eb[e];
     const double ax = ux[a], ay = uy[a], az = uz[a], bx = ux[b], by = uy[b], bz = uz[b];
     const double lx = ax - bx, ly = ay - by, lz = az - bz;
     const double l = std::sqrt(lx * lx + ly * ly + lz * lz);
     theta[e] = calc_short_chord_angle(l);
-    any_long |= l >= kSeriesChord;
+    longest = std::max(longest, l);
     const double cx = ay * bz - az * by, cy = az * bx - ax * bz, cz = ax * by - ay * bx;
     const double cn = std::sqrt(cx * cx + cy * cy + cz * cz);
-    const double inv = cn > 0.0 ? 1.0 / cn : 0.0;
+    const double inv = 1.0 / std::max(cn, std::numeric_limits<double>::min());  // n = 0 when cn = 0
     nx[e] = cx * inv;
     ny[e] = cy * inv;
     nz[e] = cz * inv;
   }
-  if (any_long) {
+  if (longest >= kSeriesChord) {
     for (std::size_t e = 0; e < ne; ++e) {
       const int a = ea[e], b = eb[e];
       const double lx = ux[a] - ux[b], ly = uy[a] - uy[b], lz = uz[a] - uz[b];
