@@ -308,6 +308,12 @@ float round_up(double x) {
   return f;
 }
 
+// A non-negative double as float, infinity beyond float range (a plain cast would be undefined).
+float to_float_or_infinity(double x) {
+  return x > static_cast<double>(std::numeric_limits<float>::max()) ? std::numeric_limits<float>::infinity()
+                                                                    : static_cast<float>(x);
+}
+
 // Padded, outward-rounded float box of one cluster of double triangles.
 void bounds_callback(const RTCBoundsFunctionArguments* args) {
   const auto* bvh = static_cast<const MeshQuery::Bvh*>(args->geometryUserPtr);
@@ -417,7 +423,7 @@ bool point_query_callback(RTCPointQueryFunctionArguments* args) {
                                   static_cast<float>(q->p.x() - anchor[0]),
                                   static_cast<float>(q->p.y() - anchor[1]),
                                   static_cast<float>(q->p.z() - anchor[2]),
-                                  static_cast<float>(limit * limit * (1.0 + 1e-6)));
+                                  to_float_or_infinity(limit * limit * (1.0 + 1e-6)));
   if (count < K) mask &= (1u << count) - 1u;  // the last cluster may be partly empty
   bool improved = false;
   while (mask != 0) {
@@ -493,7 +499,7 @@ void intersect_callback(const RTCIntersectFunctionNArguments* args) {
   unsigned mask = find_ray_candidates(
       r->bvh->soa.data() + MeshQuery::Bvh::kSoaRows * K * args->primID, static_cast<float>(oa.x()),
       static_cast<float>(oa.y()), static_cast<float>(oa.z()), r->unit_direction[0],
-      r->unit_direction[1], r->unit_direction[2], static_cast<float>(margin));
+      r->unit_direction[1], r->unit_direction[2], to_float_or_infinity(margin));
   if (count < K) mask &= (1u << count) - 1u;
   while (mask != 0) {
     const auto k = static_cast<unsigned>(std::countr_zero(mask));
