@@ -78,6 +78,10 @@ void run_fibres(const FibresArgs& a) {
     throw_usage("--aponeurosis needs --attachments aponeurosis");
   if (!aponeurosis_areas && !a.insertion_side.empty())
     throw_usage("--insertion-side needs --attachments aponeurosis");
+  if (a.pennation_reference == "aponeurosis" && (!aponeurosis_areas || opt.method != FibreMethod::harmonic))
+    throw_usage("--pennation-reference aponeurosis needs --attachments aponeurosis and --method harmonic");
+  if (a.rise_crossing == "mapped-crossing" && (opt.method != FibreMethod::template_map || !(a.pennation_deg > 0.0)))
+    throw_usage("--rise-crossing mapped-crossing needs --method template and --pennation-deg");
   if (aponeurosis_areas && (!a.origin.empty() || !a.bones.empty()))
     throw_usage("--attachments aponeurosis cannot be combined with landmarks or bones");
   const Architecture architecture = parse_architecture(a.architecture);

@@ -134,6 +134,11 @@ TEST(CliFibres, RiseCrossingRuleIsSelectable) {
                                           "--pennation-deg 9.6 --rise-crossing chord --out " +
                                           (dir / "f.vtp").string());
   EXPECT_EQ(bad.code, 2) << bad.out;
+  // The rule applies to the template method only: elsewhere it is a usage error, not ignored.
+  const FibresCliRun ignored = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --method harmonic "
+                                              "--pennation-deg 9.6 --rise-crossing mapped-crossing --out " +
+                                              (dir / "f.vtp").string());
+  EXPECT_EQ(ignored.code, 2) << ignored.out;
 }
 
 TEST(CliFibres, PennationAgainstTheAponeurosesWithTheInsertionOnTheDeepSide) {
@@ -159,5 +164,9 @@ TEST(CliFibres, PennationAgainstTheAponeurosesWithTheInsertionOnTheDeepSide) {
   r = run_fibres_cli("--mesh " + mg + " --units mm --attachments aponeurosis --pennation-deg 20 "
                      "--method harmonic --pennation-reference tendon --out " +
                      (dir / "x.vtp").string());
+  EXPECT_EQ(r.code, 2) << r.out;
+  // The aponeurosis reference needs aponeurosis areas: without them it is refused, not ignored.
+  r = run_fibres_cli("--mesh " + mg + " --units mm --method harmonic --pennation-reference aponeurosis "
+                     "--out " + (dir / "x.vtp").string());
   EXPECT_EQ(r.code, 2) << r.out;
 }
