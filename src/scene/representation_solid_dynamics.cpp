@@ -236,6 +236,7 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
     std::vector<Transform> X_prev;  // drivers at the previous frame
     std::vector<Transform> X_now;   // drivers at this frame (between begin_frame and end_frame)
     double activation = 0.0, dt = 0.0;
+    std::vector<std::vector<Eigen::Index>> near_bone;  // per bone: surface vertices near it this frame
   };
 
   std::unique_ptr<RepresentationState> make_state() const override {
@@ -271,7 +272,34 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
       frame.dt = 0.0;
       return 0;
     }
-    return frame.dt > 0.0 ? count_substeps(frame.dt) : 0;
+    if (!(frame.dt > 0.0)) return 0;
+    find_near_bone(model, frame);
+    return count_substeps(frame.dt);
+  }
+
+  // Broad phase of the frame's bone contact: surface vertices within kNearBone_m of each bone (at
+  // the previous frame's pose; a frame moves a vertex far less than that).
+  void find_near_bone(const Model& model, Frame& frame) const {
+    const Points3 S = calc_surface(frame.solver.get_state().P);
+    frame.near_bone.assign(bone_bodies_.size(), {});
+    for (std::size_t k = 0; k < bone_bodies_.size(); ++k) {
+      const Body& body = model.get_body(bone_bodies_[k]);
+      const Transform X_rest_now = frame.X_prev[kFirstBoneDriver + k].inverse();
+      Eigen::AlignedBox3d box = body.rest_box;
+      box.min().array() -= kNearBone_m;
+      box.max().array() += kNearBone_m;
+      std::vector<Eigen::Index> in_box;
+      Points3 local(S.rows(), 3);
+      for (Eigen::Index i = 0; i < S.rows(); ++i) {
+        const Vec3 p = X_rest_now * Vec3(S.row(i).transpose());
+        if (!box.contains(p)) continue;
+        local.row(static_cast<Eigen::Index>(in_box.size())) = p.transpose();
+        in_box.push_back(i);
+      }
+      const VecX sd = body.rest_query->calc_signed_distances(local.topRows(static_cast<Eigen::Index>(in_box.size())));
+      for (std::size_t j = 0; j < in_box.size(); ++j)
+        if (sd[static_cast<Eigen::Index>(j)] < kNearBone_m) frame.near_bone[k].push_back(in_box[j]);
+    }
   }
 
   int count_substeps(double dt) const {
@@ -287,7 +315,7 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
     for (std::size_t d = 0; d < frame.X_now.size(); ++d)
       in.X_now_rest[d] = interpolate_motion(frame.X_prev[d], frame.X_now[d], static_cast<double>(k + 1) / n);
     frame.solver.step(frame.dt / n, in);
-    project_bone_contact(model, frame.solver, in.X_now_rest);
+    project_bone_contact(model, frame.solver, in.X_now_rest, frame.near_bone);
   }
 
   void end_frame(const Model& model, const State& state, Frame& frame, MuscleFrame& out) const {
@@ -453,26 +481,29 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
     double depth = 0.0;
   };
 
-  std::vector<SurfaceContact> find_surface_contacts(const Model& model, const Points3& S,
-                                                    const std::vector<Transform>& X) const {
+  // Only the vertices of `near[k]` are tested against bone k (the frame's broad phase).
+  std::vector<SurfaceContact> find_surface_contacts(const Model& model, const Points3& S, const std::vector<Transform>& X,
+                                                    const std::vector<std::vector<Eigen::Index>>& near) const {
     std::vector<SurfaceContact> out;
-    for (std::size_t k = 0; k < bone_bodies_.size(); ++k) {
+    for (std::size_t k = 0; k < bone_bodies_.size() && k < near.size(); ++k) {
       const Body& body = model.get_body(bone_bodies_[k]);
       const Transform& X_now = X[kFirstBoneDriver + k];
       const Transform X_rest_now = X_now.inverse();
-      const Points3 local = ((S * X_rest_now.linear().transpose()).rowwise() + X_rest_now.translation().transpose()).eval();
       std::vector<Eigen::Index> in_box;
-      for (Eigen::Index i = 0; i < local.rows(); ++i)
-        if (body.rest_box.contains(local.row(i).transpose())) in_box.push_back(i);
+      Points3 local(static_cast<Eigen::Index>(near[k].size()), 3);
+      for (const Eigen::Index i : near[k]) {
+        const Vec3 p = X_rest_now * Vec3(S.row(i).transpose());
+        if (!body.rest_box.contains(p)) continue;
+        local.row(static_cast<Eigen::Index>(in_box.size())) = p.transpose();
+        in_box.push_back(i);
+      }
       if (in_box.empty()) continue;
-      Points3 P(static_cast<Eigen::Index>(in_box.size()), 3);
-      for (std::size_t j = 0; j < in_box.size(); ++j) P.row(static_cast<Eigen::Index>(j)) = local.row(in_box[j]);
-      const VecX sd = body.rest_query->calc_signed_distances(P);
+      const VecX sd = body.rest_query->calc_signed_distances(local.topRows(static_cast<Eigen::Index>(in_box.size())));
       for (std::size_t j = 0; j < in_box.size(); ++j) {
         const Eigen::Index i = in_box[j];
         const double depth = -sd[static_cast<Eigen::Index>(j)] - rest_depth_[k][i];
         if (!(depth > kContactTolerance_m)) continue;
-        const Vec3 p = local.row(i).transpose();
+        const Vec3 p = local.row(static_cast<Eigen::Index>(j)).transpose();
         const Vec3 d = body.rest_query->calc_closest_point(p).point - p;
         if (!(d.norm() > 0.0)) continue;
         out.push_back({i, X_now.linear() * d.normalized(), depth});
@@ -488,7 +519,8 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
   // with multipliers λ ≥ 0 the change is ΔP = M⁻¹ Aᵀ (n λ); λ from projected Gauss–Seidel on the
   // rows. Then the inward normal velocity of those vertices is removed the same way (inelastic,
   // frictionless). Repeated while the new positions reach other triangles of the bone.
-  void project_bone_contact(const Model& model, SolidDynamicsSolver& solver, const std::vector<Transform>& X) const {
+  void project_bone_contact(const Model& model, SolidDynamicsSolver& solver, const std::vector<Transform>& X,
+                            const std::vector<std::vector<Eigen::Index>>& near) const {
     if (bone_bodies_.empty()) return;
     const SolidDynamicsModel& sm = solver.get_model();
     const Eigen::Index n = sm.rest.num_control_points();
@@ -498,7 +530,7 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
     SolidState s = solver.get_state();
     std::vector<SurfaceContact> first;
     for (int round = 0; round < 4; ++round) {
-      const std::vector<SurfaceContact> contacts = find_surface_contacts(model, calc_surface(s.P), X);
+      const std::vector<SurfaceContact> contacts = find_surface_contacts(model, calc_surface(s.P), X, near);
       if (contacts.empty()) break;
       if (round == 0) first = contacts;
       VecX target(static_cast<Eigen::Index>(contacts.size()));
@@ -656,6 +688,7 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
   Eigen::AlignedBox3d rest_box_;
   SparseRowMatrix surface_map_;                  // surface vertices = surface_map_ P + offset_fixed_
   static constexpr double kContactTolerance_m = 1e-6;
+  static constexpr double kNearBone_m = 0.005;
   Points3 offset_material_, offset_fixed_;
   SparseRowMatrix fibre_w_;
   int num_fibres_ = 0, fibre_samples_ = 2;
