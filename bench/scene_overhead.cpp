@@ -4,13 +4,15 @@
 //   - OverlapMeasure/reused: calc_muscle_overlaps on the surfaces of two consecutive frames in turn,
 //     with the State's cache filled by earlier frames (what every frame after the first costs in
 //     `fascicle run`);
-//   - OverlapMeasure/fresh: the same with an empty cache every time (each surface query built anew,
-//     the cost before the cache);
+//   - OverlapMeasure/fresh: the same with an empty cache every time (each surface query built anew);
+//   - OverlapMeasureBefore: the measure as it was before (queries built every frame, deformation's
+//     calc_surface_overlap on every pair, sequential);
 //   - ParaViewFrame: the "paraview" writer's write_frame for one frame (bone, 7 surfaces, 7 fibre
 //     sets, 7 action lines), alternating between two frames so the moving foot is rewritten;
 //     finish() included (it waits for any file still being written).
 // The scene is compiled and two frames solved once in the setup (several seconds).
 #include "fascicle/core/parallel.hpp"
+#include "fascicle/deformation/surface_first.hpp"
 #include "fascicle/io/table.hpp"
 #include "fascicle/scene/builtins.hpp"
 #include "fascicle/scene/driver.hpp"
@@ -94,6 +96,34 @@ void BM_OverlapMeasure(benchmark::State& bm, bool reuse) {
   bm.counters["max_overlap_mm"] = 1e3 * worst;
 }
 BENCHMARK_CAPTURE(BM_OverlapMeasure, reused, true)->Unit(benchmark::kMillisecond);
+
+// The measure as it was before the State's cache: a MeshQuery built per muscle per frame and
+// deformation's calc_surface_overlap(V, F, query) per pair (whole edge graph rebuilt each call).
+void BM_OverlapMeasureBefore(benchmark::State& bm) {
+  Shank& shank = get_shank();
+  ThreadLimit limit(1);
+  const Model& model = *shank.model;
+  std::vector<MuscleFrame> frames[2] = {shank.states[0].muscles, shank.states[1].muscles};
+  int k = 0;
+  double worst = 0.0;
+  for (auto _ : bm) {
+    const std::vector<MuscleFrame>& f = frames[k++ % 2];
+    const size_t n = f.size();
+    std::vector<Eigen::AlignedBox3d> box(n);
+    for (size_t m = 0; m < n; ++m)
+      box[m] = Eigen::AlignedBox3d(f[m].surface.colwise().minCoeff().transpose(),
+                                   f[m].surface.colwise().maxCoeff().transpose());
+    std::vector<std::unique_ptr<MeshQuery>> query(n);
+    for (size_t b = 0; b < n; ++b) query[b] = std::make_unique<MeshQuery>(TriMesh{f[b].surface, model.muscles[b].rest_mesh.F});
+    worst = 0.0;
+    for (size_t a = 0; a < n; ++a)
+      for (size_t b = 0; b < n; ++b)
+        if (a != b && box[a].intersects(box[b]))
+          worst = std::max(worst, calc_surface_overlap(f[a].surface, model.muscles[a].rest_mesh.F, *query[b]).max_depth_m);
+  }
+  bm.counters["max_overlap_mm"] = 1e3 * worst;
+}
+BENCHMARK(BM_OverlapMeasureBefore)->Unit(benchmark::kMillisecond);
 BENCHMARK_CAPTURE(BM_OverlapMeasure, fresh, false)->Unit(benchmark::kMillisecond);
 
 void BM_ParaViewFrame(benchmark::State& bm) {
