@@ -122,9 +122,14 @@ bool add_triangle_weights(const Triangles& F, Eigen::Index f, const MvcScratch& 
 // sin/cos. Triangles seen nearly edge-on (|n_i . u_i| <= 1e-6) or nearly containing x use the
 // per-triangle formula (add_triangle_weights), which handles the in-plane and on-triangle cases.
 // The vertex and edge passes run over plain arrays (structure of arrays) so they vectorise.
-// Compiled for AVX-512, AVX2 and the baseline; the loader picks the best the CPU has (GCC function
-// multiversioning). Results may differ between those versions in the last bits (fused multiply-add).
-[[gnu::target_clones("avx512f", "avx2", "default")]]
+// With GCC on x86-64 it is compiled for AVX-512, AVX2 and the baseline, and the loader picks the
+// best the CPU has (function multiversioning). Neither target enables fused multiply-add and the
+// loops are element-wise (no reassociated sums), so the versions are meant to give the same bits;
+// elsewhere, and under AddressSanitizer (whose instrumentation does not mix with ifunc resolvers),
+// only the baseline is built.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__SANITIZE_ADDRESS__)
+__attribute__((target_clones("avx512f", "avx2", "default")))
+#endif
 VecX calc_mean_value_coordinates(const TriMesh& mesh, const EdgeTable& table, const Vec3& x, MvcScratch& s) {
   const Eigen::Index n = mesh.V.rows();
   const double scale = (mesh.V.colwise().maxCoeff() - mesh.V.colwise().minCoeff()).norm();
