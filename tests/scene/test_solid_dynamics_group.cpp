@@ -41,7 +41,7 @@ Model make_pair_scene(const std::string& name, double half_distance_m, bool musc
   }
   const auto muscle = [&](const std::string& n, double x) {
     return fmt::format(R"({{"name": "{}", "representation": "solid_dynamics", "mesh": "{}.obj",
-     "options": {{"contact": 0, "muscle_contact": {}}},
+     "options": {{"contact": 0, "muscle_contact": {}, "muscle_contact_stiffness": 200}},
      "origin": {{"body": "upper", "points": [[{}, 0.06, 0]], "radius": 0.004}},
      "insertion": {{"body": "lower", "points": [[{}, -0.06, 0]], "radius": 0.004}},
      "actuator": {{"type": "none"}}, "activation": 0}})",
