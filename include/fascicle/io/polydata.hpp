@@ -1,8 +1,7 @@
 // PolyData: points with triangles and/or polylines plus named point and cell fields, written as a
-// VTK XML PolyData file (.vtp: appended raw binary, LZ4 in 32 KiB blocks with VTK's UInt32 block
-// headers, Float64 values, Int32 connectivity and offsets) by a direct encoder, read by VTK's
-// vtkXMLPolyDataReader and ParaView >= 5.5. Used for the per-frame outputs: bones, muscle
-// surfaces, fibres, action lines.
+// VTK XML PolyData file (.vtp) by VTK's own vtkXMLPolyDataWriter (appended raw binary, LZ4, UInt32
+// block headers, Int32 connectivity and offsets), as ParaView reads it. Used for the per-frame
+// outputs: bones, muscle surfaces, fibres, action lines.
 #pragma once
 
 #include "fascicle/core/types.hpp"
@@ -39,10 +38,10 @@ PolyData make_polydata(const TriMesh& mesh);
 // naming the field.
 void check_polydata(const PolyData& data);
 
-// Writes a .vtp (one buffer, no VTK objects; the same input gives the same bytes) into a temporary
-// file that is renamed over `path` on success (an error never leaves a partial file). The header
-// carries no RangeMin/RangeMax attributes (optional in the format). Throws fascicle::Error (bad_input naming the
-// path) when the folder is not writable or the file cannot be written.
+// Writes a .vtp: VTK encodes it in memory, then it goes into a temporary file that is renamed over
+// `path` on success (an error never leaves a partial file; the same input gives the same bytes).
+// Throws fascicle::Error (bad_input naming the path) when the folder is not writable or VTK
+// reports an error.
 void write_polydata(const std::filesystem::path& path, const PolyData& data);
 
 // Reads a .vtp with vtkXMLPolyDataReader: points, polylines, triangles (polygons with more than
