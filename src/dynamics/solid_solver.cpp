@@ -191,6 +191,15 @@ void SolidDynamicsSolver::set_state(SolidState s) {
   ws_->factor_age = -1;
 }
 
+void SolidDynamicsSolver::correct_state(const Points3& P, const Points3& V) {
+  const int n = model_->rest.num_control_points();
+  if (P.rows() != n || V.rows() != n)
+    throw_bad_input(fmt::format("solid state correction has {} positions and {} velocities, the model {} points",
+                                P.rows(), V.rows(), n));
+  state_.P = P;
+  state_.V = V;
+}
+
 void SolidDynamicsSolver::project_volume(SolidState& s, double dt, StepReport& r) const {
   const SolidDynamicsModel& m = *model_;
   if (m.spec.volume != VolumeMethod::exact) return;

@@ -550,7 +550,9 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
     for (std::size_t c = 0; c < first.size(); ++c)
       target[static_cast<Eigen::Index>(c)] = -first[c].normal.dot(v.row(first[c].vertex).transpose());
     s.V += solve_contact_rows(sm, s, X, first, target, inv_mass);
-    solver.set_state(std::move(s));
+    // A correction, not a restart: the energy guard keeps its reference and the factorisation
+    // is kept.
+    solver.correct_state(s.P, s.V);
   }
 
   // ΔP = M⁻¹ (Σ_c a_c λ_c + ∇V μ) with λ ≥ 0 and a_c·ΔP ≥ target_c (a_c = n_c ⊗ row of the vertex in

@@ -529,3 +529,94 @@ TEST(SolidIntegrators, QuasiStaticContractionIsAnEquilibrium) {
 
 }  // namespace
 }  // namespace fascicle
+
+namespace fascicle {
+namespace {
+
+// correct_state (small corrections such as contact projections) keeps the energy reference: the
+// energy that repeated corrections inject still trips the blow-up guard, whereas set_state
+// re-bases the guard at every call and never notices it.
+TEST(SolidCorrections, EnergyInjectedByCorrectionsTripsTheBlowUpGuard) {
+  const BSplineSolid box = make_box({3, 3, 4});
+  SolidDynamicsSpec spec = make_free_spec();
+  spec.gravity_m_s2.setZero();
+  spec.rayleigh_alpha_1_s = 0.0;
+  auto m = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(box, spec));
+  SolidState s0;
+  s0.P = box.P;
+  s0.V = Points3::Zero(box.P.rows(), 3);
+  s0.V.col(0).setConstant(0.1);  // rigid translation: E0 = ½ m v², stable under any step
+  const auto run = [&](bool additive) -> int {
+    SolidDynamicsSolver solver(m);
+    solver.set_state(s0);
+    for (int k = 0; k < 40; ++k) {
+      solver.step(0.001, {});
+      SolidState s = solver.get_state();
+      s.V *= 1.5;  // each correction multiplies the kinetic energy by 2.25
+      if (additive)
+        solver.correct_state(s.P, s.V);
+      else
+        solver.set_state(s);
+    }
+    return 40;
+  };
+  // Bound: E0 + 1e3 (E0 + m·1 J/kg) with E0 = 0.005 m: E grows past it after ~13 corrections.
+  try {
+    run(true);
+    FAIL() << "energy grew by 1.5^80 through corrections without an error";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::numerical);
+    EXPECT_NE(std::string(e.what()).find("blow-up"), std::string::npos) << e.what();
+  }
+  // The same growth through set_state goes unnoticed (the guard is re-based each step).
+  EXPECT_EQ(run(false), 40);
+}
+
+// An identity correction between steps changes nothing: same bits, same factorisations (the kept
+// factorisation survives it); set_state drops the factorisation every time.
+TEST(SolidCorrections, IdentityCorrectionKeepsResultsAndFactorisation) {
+  const BSplineSolid box = make_box({3, 3, 5});
+  SolidDynamicsSpec spec = make_free_spec();
+  spec.gravity_m_s2.setZero();
+  spec.rayleigh_alpha_1_s = 30.0;
+  spec.volume = VolumeMethod::exact;
+  auto m = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(box, spec));
+  SolverOptions o;
+  o.reuse_factorisation_steps = 20;
+  SolidState s0;
+  s0.P = box.P;
+  s0.P.col(2) *= 1.2;
+  s0.V = Points3::Zero(box.P.rows(), 3);
+  const auto run = [&](int mode, int& factorisations) {
+    SolidDynamicsSolver solver(m, o);
+    solver.set_state(s0);
+    factorisations = 0;
+    for (int k = 0; k < 30; ++k) {
+      factorisations += solver.step(0.005, {}).factorisations;
+      const SolidState s = solver.get_state();
+      if (mode == 1) solver.correct_state(s.P, s.V);
+      if (mode == 2) solver.set_state(s);
+    }
+    return solver.get_state();
+  };
+  int f_plain = 0, f_corrected = 0, f_reset = 0;
+  const SolidState plain = run(0, f_plain);
+  const SolidState corrected = run(1, f_corrected);
+  run(2, f_reset);
+  EXPECT_EQ(plain.P, corrected.P);
+  EXPECT_EQ(plain.V, corrected.V);
+  EXPECT_EQ(plain.time_s, corrected.time_s);
+  EXPECT_EQ(f_plain, f_corrected);
+  EXPECT_LT(f_plain, f_reset) << "the factorisation is reused across steps without corrections";
+  // Wrong sizes are bad input.
+  SolidDynamicsSolver solver(m, o);
+  try {
+    solver.correct_state(Points3::Zero(3, 3), Points3::Zero(3, 3));
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+  }
+}
+
+}  // namespace
+}  // namespace fascicle

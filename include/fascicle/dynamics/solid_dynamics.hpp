@@ -293,7 +293,14 @@ class SolidDynamicsSolver {
 
   const SolidDynamicsModel& get_model() const { return *model_; }
   const SolidState& get_state() const { return state_; }
+  // Replaces the whole state and starts afresh: the energy blow-up reference is re-taken at the
+  // next step and any kept factorisation is dropped.
   void set_state(SolidState s);
+  // Replaces positions P and velocities V (#P × 3, m and m/s) and keeps everything else: the time,
+  // activation, the energy blow-up reference and the kept factorisation (which stays valid for
+  // the remaining reuse steps). For small corrections between steps, such as contact projections;
+  // the energy that such corrections add still counts against the blow-up guard.
+  void correct_state(const Points3& P, const Points3& V);
   const SolverOptions& get_options() const { return options_; }
 
   // Advances the state by dt (s). On failure (NaN, energy blow-up, inversion that step halving
