@@ -81,6 +81,32 @@ double find_closest_arc(const Points3& line, const Vec3& p) {
 
 Points3 reversed_rows(const Points3& P) { return P.colwise().reverse().eval(); }
 
+// An integer option of a muscle, checked before the conversion (casting NaN or a double beyond
+// int's range is undefined): a finite whole number in [lo, hi], else bad input naming the muscle
+// and the option.
+int get_int_option(const Muscle& m, const std::string& key, int fallback, int lo, int hi) {
+  const double v = get_option(m, key, fallback);
+  if (!(v >= lo && v <= hi) || v != std::floor(v))
+    throw_bad_input(fmt::format("solid_dynamics option {} = {} is not a whole number from {} to {}", key, v, lo, hi),
+                    {.object = m.name,
+                     .suggestion = fmt::format("set \"{}\" to a whole number from {} to {}, or leave it out for {}", key,
+                                               lo, hi, fallback)});
+  return static_cast<int>(v);
+}
+
+// A positive finite time option (s).
+double get_time_option(const Muscle& m, const std::string& key, double fallback) {
+  const double v = get_option(m, key, fallback);
+  if (!(v > 0.0) || !std::isfinite(v))
+    throw_bad_input(fmt::format("solid_dynamics option {} = {} s is not a positive finite time", key, v),
+                    {.object = m.name,
+                     .suggestion = fmt::format("set \"{}\" to a positive time in s, or leave it out for {}", key, fallback)});
+  return v;
+}
+
+// Most sub-steps one frame may take: more means a tiny time_step or a huge frame interval.
+constexpr double kMaxSubsteps = 1e6;
+
 // How one end layer of the solid moves. An end whose attachment area lies on the rest surface
 // follows its body rigidly. An end whose landmarks are away from the belly (e.g. a soleus ending in
 // the Achilles tendon) keeps its arc length from that end of the action line, as through an
@@ -108,13 +134,14 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
   SolidDynamicsRepresentation(const Model& model, MuscleIndex mi) {
     const Muscle& m = model.get_muscle(mi);
     require_muscle_mesh(m, "solid_dynamics");
-    options_.lattice = {static_cast<int>(get_option(m, "lattice_u", 3)), static_cast<int>(get_option(m, "lattice_v", 8)),
-                        static_cast<int>(get_option(m, "lattice_w", 6))};
-    options_.degree = static_cast<int>(get_option(m, "degree", 2));
-    options_.time_step_s = get_option(m, "time_step", options_.time_step_s);
-    options_.reuse_factorisation = static_cast<int>(get_option(m, "reuse_factorisation", options_.reuse_factorisation));
-    options_.settle_steps = static_cast<int>(get_option(m, "settle_steps", options_.settle_steps));
-    options_.settle_step_s = get_option(m, "settle_step", options_.settle_step_s);
+    name_ = m.name;
+    options_.lattice = {get_int_option(m, "lattice_u", 3, 2, 256), get_int_option(m, "lattice_v", 8, 3, 256),
+                        get_int_option(m, "lattice_w", 6, 2, 256)};
+    options_.degree = get_int_option(m, "degree", 2, 1, 5);
+    options_.time_step_s = get_time_option(m, "time_step", options_.time_step_s);
+    options_.reuse_factorisation = get_int_option(m, "reuse_factorisation", options_.reuse_factorisation, 0, 1000000);
+    options_.settle_steps = get_int_option(m, "settle_steps", options_.settle_steps, 1, 1000000);
+    options_.settle_step_s = get_time_option(m, "settle_step", options_.settle_step_s);
     if (options_.lattice[0] < 2 || options_.lattice[1] < 3 || options_.lattice[2] < 2 || options_.degree < 1 ||
         !(options_.time_step_s > 0.0) || options_.settle_steps < 1)
       throw_bad_input("solid_dynamics options: need lattice_u >= 2, lattice_v >= 3, lattice_w >= 2, degree >= 1, "
@@ -303,7 +330,14 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
   }
 
   int count_substeps(double dt) const {
-    return std::max(1, static_cast<int>(std::ceil(dt / options_.time_step_s - 1e-9)));
+    const double n = std::ceil(dt / options_.time_step_s - 1e-9);
+    if (!(n <= kMaxSubsteps))
+      throw_bad_input(fmt::format("solid_dynamics: a frame interval of {} s needs {} sub-steps of time_step {} s (at "
+                                  "most {} per frame)",
+                                  dt, n, options_.time_step_s, kMaxSubsteps),
+                      {.object = name_,
+                       .suggestion = "check the motion's times (seconds, increasing) or increase \"time_step\""});
+    return std::max(1, static_cast<int>(n));
   }
 
   // Sub-step k of n of the frame, with optional external generalised forces (#P × 3, N).
@@ -336,7 +370,7 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
     o.count = options_.lattice;
     o.degree = {std::min(options_.degree, std::min(2, o.count[0] - 1)), options_.degree,
                 std::min(options_.degree, o.count[2] - 1)};
-    o.num_slices = static_cast<int>(get_option(m, "slices", 48));
+    o.num_slices = get_int_option(m, "slices", 48, 3, 100000);
     // End caps a little inside the mesh's tips: a tapered (spindle) belly fitted to its very tips
     // gives nearly collapsed end layers, badly conditioned for the dynamics.
     o.end_inset = get_option(m, "end_inset", 0.05);
@@ -607,9 +641,9 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
   void make_fibre_grid(const Muscle& m) {
     const BSplineSolid& solid = model_->rest;
     const int f = static_cast<int>(solid.fibre_direction), a = (f + 1) % 3, b = (f + 2) % 3;
-    const int na = std::max(1, static_cast<int>(get_option(m, "fibre_rings", 2)));
-    const int nb = std::max(1, static_cast<int>(get_option(m, "fibre_count_around", 8)));
-    fibre_samples_ = std::max(2, static_cast<int>(get_option(m, "fibre_samples", 16)));
+    const int na = get_int_option(m, "fibre_rings", 2, 1, 1000);
+    const int nb = get_int_option(m, "fibre_count_around", 8, 1, 1000);
+    fibre_samples_ = get_int_option(m, "fibre_samples", 16, 2, 1000);
     const Vec3 lo = solid.get_lower(), hi = solid.get_upper();
     std::vector<Eigen::Triplet<double>> t;
     int row = 0;
@@ -679,6 +713,7 @@ class SolidDynamicsRepresentation final : public MuscleRepresentation {
     set_fibre_metrics(rest_fibre_length_, out);
   }
 
+  std::string name_;  // the muscle's, for errors
   SolidOptions options_;
   SolverOptions solver_options_;
   std::shared_ptr<const SolidDynamicsModel> model_;
@@ -735,7 +770,7 @@ class SolidDynamicsGroup final : public MuscleGroupRepresentation {
     // 50 N/m per sample: at 200 N/m the explicit exchange inverted the VH tibialis anterior, whose
     // mesh overlaps its neighbours at rest.
     stiffness_N_m_ = get_option(first, "muscle_contact_stiffness", 50.0);
-    samples_per_span_ = static_cast<int>(get_option(first, "muscle_contact_samples", 2.0));
+    samples_per_span_ = get_int_option(first, "muscle_contact_samples", 2, 1, 64);
     const double margin = get_option(first, "muscle_margin", 0.005);
     if (!(stiffness_N_m_ >= 0.0) || samples_per_span_ < 1 || !(margin >= 0.0))
       throw_bad_input("solid_dynamics options: need muscle_contact_stiffness >= 0, muscle_contact_samples >= 1 "

@@ -123,3 +123,42 @@ TEST(SolidDynamicsRepresentation, RejectsBadOptions) {
     EXPECT_NE(std::string(e.what()).find("soleus"), std::string::npos) << e.what();
   }
 }
+
+// Integer options are checked before the conversion to int (NaN or 1e20 cast to int is undefined
+// behaviour): bad input naming the muscle and the option.
+TEST(SolidDynamicsRepresentation, RejectsNonFiniteAndHugeIntegerOptions) {
+  for (const char* key : {"lattice_u", "lattice_v", "lattice_w", "degree", "reuse_factorisation", "settle_steps",
+                          "slices", "fibre_rings", "fibre_count_around", "fibre_samples", "muscle_contact_samples"})
+    for (const double v : {std::nan(""), 1e20, -1e20, 2.5}) {
+      SCOPED_TRACE(std::string(key) + " = " + std::to_string(v));
+      try {
+        make_leg_model({{key, v}});
+        ADD_FAILURE() << "accepted";
+      } catch (const Error& e) {
+        EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+        const std::string msg = e.what();
+        EXPECT_NE(msg.find("soleus"), std::string::npos) << msg;
+        EXPECT_NE(msg.find(key), std::string::npos) << msg;
+      }
+    }
+  for (const char* key : {"time_step", "settle_step"})
+    for (const double v : {std::nan(""), double(INFINITY), 0.0}) {
+      SCOPED_TRACE(std::string(key) + " = " + std::to_string(v));
+      EXPECT_THROW(make_leg_model({{key, v}}), Error);
+    }
+}
+
+// A frame interval that needs more sub-steps than an int holds (0.02 s / 1e-12 s) is bad input
+// naming the muscle, not an undefined cast.
+TEST(SolidDynamicsRepresentation, RejectsTooManySubsteps) {
+  const Model model = make_leg_model({{"time_step", 1e-12}});
+  try {
+    run_leg(model, 2);
+    FAIL() << "2e10 sub-steps accepted";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("soleus"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("time_step"), std::string::npos) << msg;
+  }
+}
