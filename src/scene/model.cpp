@@ -6,6 +6,7 @@
 #include "fascicle/geometry/mass_properties.hpp"
 #include "fascicle/scene/names.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -415,12 +416,25 @@ Model compile(const SceneSpec& spec, const Registry& registry) {
     }
   });
   for (size_t i = 0; i < reps.size(); ++i) model.muscles[i].representation = std::move(reps[i]);
-  // Group representations: one per name, with all its muscles, in scene order.
-  for (const std::string& name : registry.muscle_groups.get_names()) {
+  // Group representations: one per name, with all its muscles, in scene order. Names that differ
+  // only in '-' versus '_' are spellings of one group (the registered aliases "solid_dynamics" /
+  // "solid-dynamics", "fibres_first" / "fibres-first"): a scene mixing them gets one group, whose
+  // muscles interact, built by the '_' spelling's factory when that one is registered.
+  const auto canonical = [](std::string s) {
+    std::replace(s.begin(), s.end(), '-', '_');
+    return s;
+  };
+  std::vector<std::string> grouped;
+  for (const std::string& registered : registry.muscle_groups.get_names()) {
+    const std::string key = canonical(registered);
+    if (std::find(grouped.begin(), grouped.end(), key) != grouped.end()) continue;
+    grouped.push_back(key);
+    const std::string name = registry.muscle_groups.find(key) ? key : registered;
     MuscleGroup g;
     g.representation = name;
     for (size_t i = 0; i < spec.muscles.size(); ++i)
-      if (spec.muscles[i].representation == name) g.muscles.push_back(MuscleIndex{static_cast<int32_t>(i)});
+      if (canonical(spec.muscles[i].representation) == key && registry.muscle_groups.find(spec.muscles[i].representation))
+        g.muscles.push_back(MuscleIndex{static_cast<int32_t>(i)});
     if (g.muscles.empty()) continue;
     g.group = registry.muscle_groups.get(name)(model, g.muscles);
     for (size_t k = 0; k < g.muscles.size(); ++k)

@@ -757,6 +757,18 @@ void run_each(std::size_t n, const std::function<void(std::size_t)>& body) {
 class SolidDynamicsGroup final : public MuscleGroupRepresentation {
  public:
   SolidDynamicsGroup(const Model& model, const std::vector<MuscleIndex>& muscles) {
+    check_group_options(model, muscles);
+    // The same in every member (check_group_options).
+    const Muscle& first = model.get_muscle(muscles.front());
+    contact_ = get_option(first, "muscle_contact", 1.0) != 0.0;
+    // 50 N/m per sample: at 200 N/m the explicit exchange inverted the VH tibialis anterior, whose
+    // mesh overlaps its neighbours at rest.
+    stiffness_N_m_ = get_option(first, "muscle_contact_stiffness", 50.0);
+    samples_per_span_ = get_int_option(first, "muscle_contact_samples", 2, 1, 64);
+    const double margin = get_option(first, "muscle_margin", 0.005);
+    if (!(stiffness_N_m_ >= 0.0) || !std::isfinite(stiffness_N_m_) || !(margin >= 0.0) || !std::isfinite(margin))
+      throw_bad_input("solid_dynamics options: need finite muscle_contact_stiffness >= 0 (N/m) and muscle_margin >= 0 (m)",
+                      {.object = first.name});
     members_.resize(muscles.size());
     run_each(muscles.size(), [&](std::size_t k) {
       try {
@@ -765,17 +777,6 @@ class SolidDynamicsGroup final : public MuscleGroupRepresentation {
         throw e.with_object(model.get_muscle(muscles[k]).name);
       }
     });
-    const Muscle& first = model.get_muscle(muscles.front());
-    contact_ = get_option(first, "muscle_contact", 1.0) != 0.0;
-    // 50 N/m per sample: at 200 N/m the explicit exchange inverted the VH tibialis anterior, whose
-    // mesh overlaps its neighbours at rest.
-    stiffness_N_m_ = get_option(first, "muscle_contact_stiffness", 50.0);
-    samples_per_span_ = get_int_option(first, "muscle_contact_samples", 2, 1, 64);
-    const double margin = get_option(first, "muscle_margin", 0.005);
-    if (!(stiffness_N_m_ >= 0.0) || samples_per_span_ < 1 || !(margin >= 0.0))
-      throw_bad_input("solid_dynamics options: need muscle_contact_stiffness >= 0, muscle_contact_samples >= 1 "
-                      "and muscle_margin >= 0",
-                      {.object = first.name});
     for (std::size_t i = 0; i < members_.size(); ++i)
       for (std::size_t j = i + 1; j < members_.size(); ++j) {
         Eigen::AlignedBox3d a = members_[i]->get_rest_box();
@@ -785,6 +786,35 @@ class SolidDynamicsGroup final : public MuscleGroupRepresentation {
       }
     if (!contact_ || stiffness_N_m_ == 0.0) adjacency_.clear();
     spdlog::debug("solid_dynamics group: {} muscles, {} pairs that can touch", members_.size(), adjacency_.size());
+  }
+
+  // The contact options act on pairs of muscles, so every member must give the same values (or
+  // leave them at the defaults): a conflict is bad input naming the first muscle and the other.
+  static void check_group_options(const Model& model, const std::vector<MuscleIndex>& muscles) {
+    const Muscle& first = model.get_muscle(muscles.front());
+    for (const auto& [key, fallback] : {std::pair<const char*, double>{"muscle_contact", 1.0},
+                                        {"muscle_contact_stiffness", 50.0},
+                                        {"muscle_contact_samples", 2.0},
+                                        {"muscle_margin", 0.005}}) {
+      const std::string k = key;
+      const auto value = [&](const Muscle& m) {
+        const double v = get_option(m, k, fallback);
+        return k == "muscle_contact" ? static_cast<double>(v != 0.0) : v;  // on/off
+      };
+      const double a = value(first);
+      for (std::size_t i = 1; i < muscles.size(); ++i) {
+        const Muscle& other = model.get_muscle(muscles[i]);
+        const double b = value(other);
+        if (a == b || (std::isnan(a) && std::isnan(b))) continue;
+        throw_bad_input(fmt::format("solid_dynamics muscles '{}' and '{}' give different {} ({} and {}); the "
+                                    "solid_dynamics muscles of a scene are stepped as one group with one value",
+                                    first.name, other.name, k, a, b),
+                        {.object = other.name,
+                         .suggestion = fmt::format("give \"{}\" the same value in every solid_dynamics muscle (or "
+                                                   "leave it out everywhere for {})",
+                                                   k, fallback)});
+      }
+    }
   }
 
   struct GroupFrame final : RepresentationState {

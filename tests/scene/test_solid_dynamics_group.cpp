@@ -25,7 +25,10 @@ namespace {
 
 // Two bellies (radii 12 × 60 × 12 mm) with centres ±(half_distance, 0, 0), between a fixed upper
 // and lower box; no bone contact, so only the muscles act on each other.
-Model make_pair_scene(const std::string& name, double half_distance_m, bool muscle_contact) {
+// right_representation / right_options: the right muscle's spelling of the representation and
+// extra options (JSON members, with a leading comma).
+Model make_pair_scene(const std::string& name, double half_distance_m, bool muscle_contact,
+                      const std::string& right_representation = "solid_dynamics", const std::string& right_options = "") {
   const fs::path dir = test::scratch_dir("solid_dynamics_group_" + name);
   const auto box_at = [](const Vec3& centre, const Vec3& half) {
     TriMesh m = make_box(half);
@@ -40,12 +43,14 @@ Model make_pair_scene(const std::string& name, double half_distance_m, bool musc
     write_mesh(dir / (side == 0 ? "left.obj" : "right.obj"), belly);
   }
   const auto muscle = [&](const std::string& n, double x) {
-    return fmt::format(R"({{"name": "{}", "representation": "solid_dynamics", "mesh": "{}.obj",
-     "options": {{"contact": 0, "muscle_contact": {}, "muscle_contact_stiffness": 200}},
+    const bool right = n == "right";
+    return fmt::format(R"({{"name": "{}", "representation": "{}", "mesh": "{}.obj",
+     "options": {{"contact": 0, "muscle_contact": {}, "muscle_contact_stiffness": 200{}}},
      "origin": {{"body": "upper", "points": [[{}, 0.06, 0]], "radius": 0.004}},
      "insertion": {{"body": "lower", "points": [[{}, -0.06, 0]], "radius": 0.004}},
      "actuator": {{"type": "none"}}, "activation": 0}})",
-                       n, n, muscle_contact ? 1 : 0, x, x);
+                       n, right ? right_representation : "solid_dynamics", n, muscle_contact ? 1 : 0,
+                       right ? right_options : "", x, x);
   };
   std::ofstream(dir / "scene.json") << R"({
   "fascicle_scene": 1, "name": "pair", "units": "m", "geometry_frame": "ground",
@@ -126,4 +131,40 @@ TEST(SolidDynamicsGroup, SameResultsForOneAndTwoThreads) {
     EXPECT_EQ((one.left[f] - two.left[f]).cwiseAbs().maxCoeff(), 0.0) << "frame " << f;
     EXPECT_EQ((one.right[f] - two.right[f]).cwiseAbs().maxCoeff(), 0.0) << "frame " << f;
   }
+}
+
+// "solid_dynamics" and "solid-dynamics" are one group: the muscles still push each other apart,
+// with the same results as when both are spelled alike.
+TEST(SolidDynamicsGroup, BothSpellingsAreOneGroup) {
+  const Model mixed = make_pair_scene("spellings", 0.0105, true, "solid-dynamics");
+  ASSERT_EQ(mixed.muscle_groups.size(), 1u);
+  EXPECT_EQ(mixed.muscle_groups[0].muscles.size(), 2u);
+  EXPECT_EQ(mixed.muscle_groups[0].representation, "solid_dynamics");
+  const PairRun a = run_pair(mixed, 3);
+  const PairRun b = run_pair(make_pair_scene("spellings_same", 0.0105, true), 3);
+  for (size_t f = 0; f < a.left.size(); ++f) {
+    EXPECT_EQ((a.left[f] - b.left[f]).cwiseAbs().maxCoeff(), 0.0) << "frame " << f;
+    EXPECT_EQ((a.right[f] - b.right[f]).cwiseAbs().maxCoeff(), 0.0) << "frame " << f;
+  }
+}
+
+// The muscle-contact options act on pairs: members giving different values are bad input naming
+// both muscles; the same value given twice (or the default written out) is accepted.
+TEST(SolidDynamicsGroup, ConflictingContactOptionsAreRejected) {
+  for (const std::string& extra : {std::string(R"(, "muscle_margin": 0.01)"), std::string(R"(, "muscle_contact_samples": 3)"),
+                                   std::string(R"(, "muscle_contact": 2, "muscle_contact_stiffness": 100)")}) {
+    SCOPED_TRACE(extra);
+    try {
+      make_pair_scene("conflict", 0.0105, true, "solid_dynamics", extra);
+      ADD_FAILURE() << "conflicting options accepted";
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+      const std::string msg = e.what();
+      EXPECT_NE(msg.find("'left'"), std::string::npos) << msg;
+      EXPECT_NE(msg.find("'right'"), std::string::npos) << msg;
+    }
+  }
+  // muscle_contact 2 means on, as 1 does; the default margin written out is no conflict.
+  EXPECT_NO_THROW(make_pair_scene("no_conflict", 0.0105, true, "solid_dynamics",
+                                  R"(, "muscle_contact": 2, "muscle_margin": 0.005)"));
 }
