@@ -281,3 +281,58 @@ TEST(SceneDriver, SameResultsWithOneAndTwoThreads) {
     EXPECT_EQ(runs[0][i].volume_m3, runs[1][i].volume_m3);
   }
 }
+
+namespace {
+
+// A per-muscle representation whose calc_geometry throws fascicle::Error for the muscles named in
+// `fail`, after some work so that two threads are inside it at once.
+struct ThrowingRepresentation final : MuscleRepresentation {
+  bool fail;
+  explicit ThrowingRepresentation(bool f) : fail(f) {}
+  void calc_geometry(const Model&, MuscleIndex, const State&, RepresentationState*, MuscleFrame& out) const override {
+    double s = 0.0;
+    for (int i = 1; i < 20000; ++i) s += std::sqrt(static_cast<double>(i));
+    out.volume_m3 = s;
+    if (fail) throw_numerical("test representation refuses this frame");
+  }
+};
+
+}  // namespace
+
+// An error thrown inside parallel_for by a muscle's representation (calc_muscle_geometry) comes
+// out of forward() on the calling thread as a fascicle::Error naming the muscle, with 2 threads,
+// whether one or both muscles throw (reported crash: a segfault inside TBB; not reproduced).
+TEST(SceneDriver, RepresentationErrorsInParallelPropagateNamingTheMuscle) {
+  Registry registry = make_default_registry();
+  registry.muscle_representations.add("throwing", [](const Model& model, MuscleIndex m) {
+    const std::string& name = model.get_muscle(m).name;
+    return std::unique_ptr<const MuscleRepresentation>(std::make_unique<ThrowingRepresentation>(name != "flexor"));
+  });
+  registry.muscle_representations.add("throwing_all", [](const Model&, MuscleIndex) {
+    return std::unique_ptr<const MuscleRepresentation>(std::make_unique<ThrowingRepresentation>(true));
+  });
+  for (const std::string rep : {"throwing", "throwing_all"}) {
+    SCOPED_TRACE(rep);
+    SceneSpec s = make_two_link_scene();
+    s.muscles.push_back(s.muscles[0]);
+    s.muscles[1].name = "extensor";
+    for (auto& m : s.muscles) m.representation = rep;
+    const Model model = compile(s, registry);
+    ThreadLimit limit(2);
+    for (int trial = 0; trial < 50; ++trial) {
+      State state = make_state(model);
+      try {
+        forward(model, state);
+        FAIL() << "no error";
+      } catch (const Error& e) {
+        EXPECT_EQ(e.kind(), ErrorKind::numerical);
+        const std::string object = e.context().object;
+        if (rep == "throwing")
+          EXPECT_EQ(object, "extensor");
+        else
+          EXPECT_TRUE(object == "flexor" || object == "extensor") << object;
+        EXPECT_NE(std::string(e.what()).find("test representation refuses"), std::string::npos) << e.what();
+      }
+    }
+  }
+}
