@@ -336,3 +336,47 @@ TEST(SceneDriver, RepresentationErrorsInParallelPropagateNamingTheMuscle) {
     }
   }
 }
+
+namespace {
+
+// A group representation that only records how many muscles it was given.
+struct CountingGroup final : MuscleGroupRepresentation {
+  void calc_geometry(const Model&, const std::vector<MuscleIndex>&, const State&, RepresentationState*,
+                     const std::vector<MuscleFrame*>&) const override {}
+};
+
+}  // namespace
+
+// Group names that differ only in '-' versus '_' (the built-in aliases solid_dynamics /
+// solid-dynamics and fibres_first / fibres-first) are one group: a scene mixing the spellings gets
+// one group holding all its muscles, built by the '_' spelling's factory.
+TEST(SceneModel, GroupSpellingsWithDashOrUnderscoreAreOneGroup) {
+  Registry registry = make_default_registry();
+  std::vector<std::string> built;
+  const auto factory = [&](const std::string& tag) {
+    return [&built, tag](const Model&, const std::vector<MuscleIndex>& muscles) {
+      built.push_back(tag + ":" + std::to_string(muscles.size()));
+      return std::unique_ptr<const MuscleGroupRepresentation>(std::make_unique<CountingGroup>());
+    };
+  };
+  registry.muscle_groups.add("probe-group", factory("dash"));
+  registry.muscle_groups.add("probe_group", factory("underscore"));
+  SceneSpec s = make_two_link_scene();
+  s.muscles.push_back(s.muscles[0]);
+  s.muscles.push_back(s.muscles[0]);
+  s.muscles[1].name = "extensor";
+  s.muscles[2].name = "third";
+  s.muscles[0].representation = "probe-group";
+  s.muscles[1].representation = "probe_group";
+  s.muscles[2].representation = "action_line";
+  const Model model = compile(s, registry);
+  ASSERT_EQ(model.muscle_groups.size(), 1u);
+  EXPECT_EQ(model.muscle_groups[0].representation, "probe_group");
+  ASSERT_EQ(model.muscle_groups[0].muscles.size(), 2u);
+  EXPECT_EQ(model.muscle_groups[0].muscles[0].v, 0);
+  EXPECT_EQ(model.muscle_groups[0].muscles[1].v, 1);
+  EXPECT_EQ(built, std::vector<std::string>{"underscore:2"});
+  // The built-in aliases are registered in both spellings.
+  for (const char* name : {"solid_dynamics", "solid-dynamics", "fibres_first", "fibres-first"})
+    EXPECT_NE(registry.muscle_groups.find(name), nullptr) << name;
+}
