@@ -145,6 +145,15 @@ struct BoundarySamples {
       nanoflann::L2_Simple_Adaptor<double, BoundarySamples>, BoundarySamples, 3>;
 };
 
+// det J of a fitted solid at the Gauss points solid dynamics integrates with (degree + 1 per span)
+// and at a finer rule, so that a fold between the coarse points is caught as well.
+JacobianMinimum find_fit_jacobian_minimum(const BSplineSolid& s) {
+  const JacobianMinimum a = find_min_jacobian_determinant(s);
+  const int finer = 2 + std::max({s.basis[0].degree, s.basis[1].degree, s.basis[2].degree});
+  const JacobianMinimum b = find_min_jacobian_determinant(s, finer);
+  return std::isnan(a.det_J) || a.det_J <= b.det_J ? a : b;
+}
+
 // Foot of the perpendicular from X onto the boundary surface u = 1 of a cylindrical lattice
 // (v periodic, w clamped to [0, 1]): Gauss–Newton on |x(1, v, w) - X|^2 from (v, w), steps
 // halved until the distance does not grow. Returns the improved (v, w).
@@ -191,7 +200,8 @@ MeshFitResult fit_solid_to_mesh(const TriMesh& mesh, const MeshFitOptions& o) {
     for (const auto& c : o.lattice_candidates) {
       one.count = c;
       MeshFitResult r = fit_solid_to_mesh(mesh, one);
-      if (r.max_distance_m < best.max_distance_m) best = std::move(r);
+      const bool r_ok = r.min_jacobian_det > 0.0, best_ok = best.min_jacobian_det > 0.0;
+      if (r_ok != best_ok ? r_ok : r.max_distance_m < best.max_distance_m) best = std::move(r);
     }
     return best;
   }
@@ -288,6 +298,29 @@ MeshFitResult fit_solid_to_mesh(const TriMesh& mesh, const MeshFitOptions& o) {
   design.solid.name = o.name;
   design.solid.fibre_direction = FibreDirection::w;
   design.solid.P = fit_control_points(design.solid, design.constraints, U, X, weights, o.smoothing);
+  // Parameter correction (vertex samples, then closest-point rounds) lowers the boundary distance
+  // but can fold the interior of a coarse lattice. Every step is checked: a step that turns a
+  // non-inverted fit into an inverted one is dropped and ends the correction (the last
+  // non-inverted fit is returned). The vertex samples are a separate step: when they invert the
+  // fit they are dropped and the closest-point rounds run on the slice samples alone. Steps from
+  // an inverted fit are kept (nothing to lose).
+  JacobianMinimum jmin = find_fit_jacobian_minimum(design.solid);
+  Eigen::Index kept_rows = row;
+  // true: the step's fit (design.solid.P) is kept; false: P restored to the previous fit
+  auto accept_step = [&](const Points3& previous) {
+    const JacobianMinimum j = find_fit_jacobian_minimum(design.solid);
+    if (jmin.det_J > 0.0 && !(j.det_J > 0.0)) {
+      spdlog::debug("fit '{}': parameter-correction step inverts the solid at ({:.3f}, {:.3f}, {:.3f}) "
+                    "(det J {:.3e}); kept the previous fit", o.name, j.material[0], j.material[1],
+                    j.material[2], j.det_J);
+      design.solid.P = previous;
+      out.correction_backed_off = true;
+      return false;
+    }
+    jmin = j;
+    kept_rows = row;
+    return true;
+  };
   if (o.mesh_vertex_samples) {
     // start each vertex's projection from the nearest slice boundary sample
     BoundarySamples bs;
@@ -322,7 +355,15 @@ MeshFitResult fit_solid_to_mesh(const TriMesh& mesh, const MeshFitOptions& o) {
       weights[r] = 4.0;
     }
     row = n1;
+    const Points3 previous = design.solid.P;
     design.solid.P = fit_control_points(design.solid, design.constraints, U, X, weights, o.smoothing);
+    out.mesh_vertex_samples_used = accept_step(previous);
+    if (!out.mesh_vertex_samples_used) {
+      row = n0;
+      U.conservativeResize(n0, 3);
+      X.conservativeResize(n0, 3);
+      weights.conservativeResize(n0);
+    }
   }
   for (int it = 0; it < o.reparametrise_iterations; ++it) {
     parallel_for(static_cast<std::size_t>(row), [&](std::size_t r) {
@@ -331,12 +372,17 @@ MeshFitResult fit_solid_to_mesh(const TriMesh& mesh, const MeshFitOptions& o) {
       U(r, 1) = vw[0];
       U(r, 2) = vw[1];
     });
+    const Points3 previous = design.solid.P;
     design.solid.P = fit_control_points(design.solid, design.constraints, U, X, weights, o.smoothing);
+    if (!accept_step(previous)) break;
+    ++out.reparametrise_rounds;
   }
   validate_solid(design.solid);
+  out.min_jacobian_det = jmin.det_J;
+  out.min_jacobian_material = jmin.material;
   out.solid = std::move(design.solid);
   out.constraints = std::move(design.constraints);
-  out.num_samples = static_cast<int>(row);
+  out.num_samples = static_cast<int>(kept_rows);
   // quality: fitted boundary -> mesh distances, and volumes
   const BoundaryTessellation tess = make_boundary_tessellation(out.solid, 6);
   const MeshQuery query(mesh);

@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <memory>
 #include <cmath>
+#include <limits>
 #include <numbers>
 
 namespace fascicle {
@@ -59,6 +60,24 @@ std::vector<SpanPoint> calc_span_quadrature(const BSplineBasis& b, int points_pe
     for (std::size_t q = 0; q < xi.size(); ++q)
       out.push_back({0.5 * (a + c) + 0.5 * (c - a) * xi[q], 0.5 * (c - a) * wi[q]});
   }
+  return out;
+}
+
+JacobianMinimum find_min_jacobian_determinant(const BSplineSolid& s, int points_per_span) {
+  std::array<std::vector<SpanPoint>, 3> g;
+  for (int d = 0; d < 3; ++d)
+    g[d] = calc_span_quadrature(s.basis[d], points_per_span > 0 ? points_per_span : s.basis[d].degree + 1);
+  JacobianMinimum out{std::numeric_limits<double>::infinity(), Vec3::Zero()};
+  for (const auto& pw : g[2])
+    for (const auto& pv : g[1])
+      for (const auto& pu : g[0]) {
+        const Vec3 uvw(pu.t, pv.t, pw.t);
+        const double det = calc_point_and_jacobian(s, uvw).J.determinant();
+        if (!(det >= out.det_J)) {  // NaN counts as inverted
+          out.det_J = det, out.material = uvw;
+          if (std::isnan(det)) return out;
+        }
+      }
   return out;
 }
 

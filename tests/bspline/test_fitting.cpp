@@ -1,5 +1,6 @@
 // Fitting B-spline solids to samples and to the Visible Human female muscle meshes (§3.1.2).
 #include "fascicle/bspline/fitting.hpp"
+#include "fascicle/bspline/lattice.hpp"
 #include "fascicle/bspline/volume.hpp"
 #include "fascicle/core/error.hpp"
 #include "fascicle/geometry/primitives.hpp"
@@ -81,6 +82,79 @@ TEST_P(VisibleHumanFit, MeetsTargets) {
 
 INSTANTIATE_TEST_SUITE_P(Muscles, VisibleHumanFit,
                          ::testing::Values("Soleus", "TibialisAnterior", "GastrocnemiusMedial"));
+
+TEST(Fitting, MinJacobianDeterminantOfAffineAndFoldedSolids) {
+  // affine map of the unit box onto a 0.02 x 0.03 x 0.1 m box: det J = 6e-5 m^3 everywhere
+  auto box = make_cubical_lattice(Vec3(0, 0, 0), Vec3(0.02, 0.03, 0.1), {2, 2, 3}, {4, 4, 6}).solid;
+  const JacobianMinimum j = find_min_jacobian_determinant(box);
+  EXPECT_NEAR(j.det_J, 0.02 * 0.03 * 0.1, 1e-15);
+  // mirrored (x -> -x): left-handed, det J = -6e-5
+  BSplineSolid mirrored = box;
+  mirrored.P.col(0) *= -1.0;
+  EXPECT_NEAR(find_min_jacobian_determinant(mirrored, 5).det_J, -0.02 * 0.03 * 0.1, 1e-15);
+  // one interior control point pushed far along w past its neighbours: x_w < 0 where its basis
+  // function falls, so the map folds in its support
+  BSplineSolid folded = box;
+  const int I = folded.index(1, 1, 2);
+  folded.P(I, 2) += 0.5;
+  const JacobianMinimum f = find_min_jacobian_determinant(folded);
+  EXPECT_LT(f.det_J, 0.0);
+  // at a point whose det J is indeed that value, in the support of the moved control point
+  EXPECT_NEAR(calc_point_and_jacobian(folded, f.material).J.determinant(), f.det_J, 1e-18);
+  EXPECT_LT(f.material[0], 0.75);
+  EXPECT_LT(f.material[1], 0.75);
+}
+
+// The examples/solid/README.md fits (coarse quadratic lattices, automatic axis): the
+// parameter correction used to fold their interior; the fitter now keeps the last non-inverted
+// fit, which solid dynamics accepts.
+struct CoarseCase {
+  const char* muscle;
+  std::array<int, 3> count;
+};
+class CoarseVisibleHumanFit : public ::testing::TestWithParam<CoarseCase> {};
+
+TEST_P(CoarseVisibleHumanFit, IsNotInverted) {
+  const CoarseCase c = GetParam();
+  const TriMesh mesh = read_mesh(test::data_path(std::string("visible_human_female/right/VHF_Right_Muscle_") +
+                                                 c.muscle + "_smooth.stl"),
+                                 LengthUnit::millimetre);
+  MeshFitOptions o;  // as `fascicle solid fit --axis auto --lattice ... --degree 2`
+  o.name = c.muscle;
+  o.count = c.count;
+  o.degree = {2, 2, 2};
+  const auto fit = fit_solid_to_mesh(mesh, o);
+  std::printf("%s %dx%dx%d: vertex samples %d, rounds %d, backed off %d, min det J %.3e m^3 at "
+              "(%.3f, %.3f, %.3f), mean %.3f mm, max %.3f mm, volume %+.3f%%\n",
+              c.muscle, c.count[0], c.count[1], c.count[2], fit.mesh_vertex_samples_used,
+              fit.reparametrise_rounds, fit.correction_backed_off, fit.min_jacobian_det,
+              fit.min_jacobian_material[0], fit.min_jacobian_material[1],
+              fit.min_jacobian_material[2], fit.mean_distance_m * 1e3, fit.max_distance_m * 1e3,
+              100 * fit.volume_difference);
+  EXPECT_GT(fit.min_jacobian_det, 0.0);
+  // the reported minimum is the solid's own, at the dynamics rule and a finer one
+  EXPECT_GE(find_min_jacobian_determinant(fit.solid).det_J, fit.min_jacobian_det);
+  EXPECT_GE(find_min_jacobian_determinant(fit.solid, 4).det_J, fit.min_jacobian_det);
+  EXPECT_GT(fit.max_distance_m, 0.0);
+  EXPECT_LT(fit.max_distance_m, 0.02);  // a coarse lattice, but the muscle's shape
+  EXPECT_LT(std::abs(fit.volume_difference), 0.05);
+  // with the correction switched off the fit is the fallback: never better than the kept one
+  MeshFitOptions plain = o;
+  plain.reparametrise_iterations = 0;
+  plain.mesh_vertex_samples = false;
+  const auto base = fit_solid_to_mesh(mesh, plain);
+  EXPECT_FALSE(base.correction_backed_off);
+  EXPECT_EQ(base.reparametrise_rounds, 0);
+  EXPECT_EQ(fit.correction_backed_off, !fit.mesh_vertex_samples_used || fit.reparametrise_rounds < 3);
+  if (!fit.mesh_vertex_samples_used && fit.reparametrise_rounds == 0) EXPECT_EQ(fit.solid.P, base.solid.P);
+  std::printf("  uncorrected: min det J %.3e m^3, mean %.3f mm, max %.3f mm\n", base.min_jacobian_det,
+              base.mean_distance_m * 1e3, base.max_distance_m * 1e3);
+}
+
+INSTANTIATE_TEST_SUITE_P(Readme, CoarseVisibleHumanFit,
+                         ::testing::Values(CoarseCase{"Soleus", {3, 8, 6}},
+                                           CoarseCase{"GastrocnemiusMedial", {3, 8, 8}}),
+                         [](const auto& info) { return std::string(info.param.muscle); });
 
 }  // namespace
 }  // namespace fascicle

@@ -14,7 +14,9 @@
 // (u = 1, v = arc fraction, w = slice level) and interior samples on the segments from the contour
 // centroid (u < 1). A few rounds of parameter correction then move each boundary sample's (v, w)
 // to its closest point on the fitted boundary surface and fit again (the slice/arc-length
-// parametrisation is only a first guess of correspondence). The lattice is cylindrical: u radial (axis at u = 0, constrained), v around
+// parametrisation is only a first guess of correspondence); a correction step that would invert
+// the solid (det J <= 0 at a Gauss point, find_min_jacobian_determinant) is dropped (the
+// last non-inverted fit is kept, at worst the uncorrected one). The lattice is cylindrical: u radial (axis at u = 0, constrained), v around
 // (periodic), w along the axis (clamped).
 #pragma once
 
@@ -68,9 +70,22 @@ struct MeshFitResult {
   double mesh_volume_m3 = 0.0;
   double solid_volume_m3 = 0.0;  // exact (boundary formula)
   double volume_difference = 0.0;  // (solid - mesh) / mesh
+  // Parameter correction as applied: a step that would turn a non-inverted fit into an inverted
+  // one is dropped (vertex samples: the rounds then run on the slice samples alone; a
+  // closest-point round: the rounds end), so the last non-inverted fit is returned (at worst the
+  // uncorrected slice fit).
+  bool mesh_vertex_samples_used = false;  // the vertex samples are in the returned fit
+  int reparametrise_rounds = 0;           // closest-point rounds in the returned fit
+  bool correction_backed_off = false;     // a correction step was dropped because it inverted
+  // Smallest det J (m^3 per unit parameter volume) at the Gauss points solid dynamics uses
+  // (degree + 1 per span) and at degree + 2 per span, and where. <= 0: the returned solid is
+  // inverted (only when even the uncorrected fit is; solid dynamics then rejects it).
+  double min_jacobian_det = 0.0;
+  Vec3 min_jacobian_material = Vec3::Zero();
 };
 
-// Throws bad_input naming the slice (index and axial position) when a slice is not a single
+// Never returns an inverted solid when the uncorrected slice fit is not inverted (see
+// MeshFitResult::correction_backed_off). Throws bad_input naming the slice (index and axial position) when a slice is not a single
 // closed contour, or when the mesh is open or empty.
 MeshFitResult fit_solid_to_mesh(const TriMesh& mesh, const MeshFitOptions& options = {});
 

@@ -38,6 +38,17 @@ struct SpanPoint {
 };
 std::vector<SpanPoint> calc_span_quadrature(const BSplineBasis& basis, int points_per_span);
 
+// Smallest det J, J = dx/d(u,v,w) (m^3 per unit parameter volume), over the Gauss–Legendre points
+// of every knot span (`points_per_span` per direction; 0: degree + 1, the rule solid dynamics
+// integrates with), and the material point where it occurs (the first one on ties). A solid whose
+// minimum is not positive is inverted or degenerate there (solid dynamics rejects it). Meaningful
+// for trivariate solids (degree >= 1 in every direction; a collapsed direction gives det J = 0).
+struct JacobianMinimum {
+  double det_J = 0.0;
+  Vec3 material = Vec3::Zero();
+};
+JacobianMinimum find_min_jacobian_determinant(const BSplineSolid& solid, int points_per_span = 0);
+
 // Volume by quadrature of det J over the parametric box (any knots).
 double calc_volume(const BSplineSolid& solid);
 VolumeAndGradient calc_volume_and_gradient(const BSplineSolid& solid);
