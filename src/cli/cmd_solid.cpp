@@ -267,6 +267,18 @@ void add_solid_commands(CLI::App& app, Invocation& run) {
         } catch (const Error& e) {
           throw e.with_file(a->mesh);
         }
+        if (fit.correction_backed_off) {
+          spdlog::info("{}: the parameter correction was backed off because it would invert the "
+                       "solid (kept: {}, {} of {} closest-point rounds)", o.name,
+                       fit.mesh_vertex_samples_used ? "mesh-vertex samples" : "no mesh-vertex samples",
+                       fit.reparametrise_rounds, o.reparametrise_iterations);
+        }
+        if (!(fit.min_jacobian_det > 0.0)) {
+          spdlog::warn("{}: the fitted solid is inverted at material point ({:.3f}, {:.3f}, {:.3f}) "
+                       "(det J {:.3e}); solid dynamics will reject it: try another --lattice or "
+                       "--origin/--insertion", o.name, fit.min_jacobian_material[0],
+                       fit.min_jacobian_material[1], fit.min_jacobian_material[2], fit.min_jacobian_det);
+        }
         write_solid(a->out, fit.solid);
         fmt::print("fitted {} ({} samples, lattice {}x{}x{})\n", o.name, fit.num_samples,
                    o.count[0], o.count[1], o.count[2]);

@@ -42,6 +42,27 @@ TEST(CliSolid, FitInfoExportTibialisAnterior) {
   }
 }
 
+// examples/solid/README.md: the coarse soleus fit, then a short maximal contraction. The
+// parameter correction would invert this lattice; the fit backs off (and says so) and the solid
+// simulates.
+TEST(CliSolid, ReadmeSoleusFitBacksOffAndSimulates) {
+  const auto mesh = fascicle::test::data_path(
+      "visible_human_female/right/VHF_Right_Muscle_Soleus_smooth.stl");
+  const auto dir = fascicle::test::scratch_dir("cli_solid_readme");
+  const auto json = (dir / "soleus.json").string();
+  const SolidCliRun fit = run_solid_cli("solid fit --mesh " + mesh.string() +
+                                        " --units mm --axis auto --lattice 3x8x6 --degree 2 --out " + json);
+  ASSERT_EQ(fit.code, 0) << fit.out;
+  EXPECT_NE(fit.out.find("backed off"), std::string::npos) << fit.out;
+  EXPECT_EQ(fit.out.find("inverted at material point"), std::string::npos) << fit.out;
+  const SolidCliRun sim = run_solid_cli("solid simulate " + json +
+                                        " --activation 1 --duration 0.05 --frame-dt 0.05 --tendon 0.1 "
+                                        "--tendon-modulus 1e8 --c1 5e4 --damping 10 --pennation 0.436 --out " +
+                                        (dir / "sim").string());
+  EXPECT_EQ(sim.code, 0) << sim.out;
+  EXPECT_NE(sim.out.find("simulated 0.050 s"), std::string::npos) << sim.out;
+}
+
 TEST(CliSolid, BadInputAndUsageExitCodes) {
   const auto dir = fascicle::test::scratch_dir("cli_solid_bad");
   {
