@@ -299,11 +299,10 @@ MeshFitResult fit_solid_to_mesh(const TriMesh& mesh, const MeshFitOptions& o) {
   design.solid.fibre_direction = FibreDirection::w;
   design.solid.P = fit_control_points(design.solid, design.constraints, U, X, weights, o.smoothing);
   // Parameter correction (vertex samples, then closest-point rounds) lowers the boundary distance
-  // but can fold the interior of a coarse lattice. Every step is checked: a step that turns a
-  // non-inverted fit into an inverted one is dropped and ends the correction (the last
-  // non-inverted fit is returned). The vertex samples are a separate step: when they invert the
-  // fit they are dropped and the closest-point rounds run on the slice samples alone. Steps from
-  // an inverted fit are kept (nothing to lose).
+  // but can fold the interior of a coarse lattice. Every step is checked, and a step that turns a
+  // non-inverted fit into an inverted one is dropped, so the last non-inverted fit is returned:
+  // dropped vertex samples leave the closest-point rounds to the slice samples alone; a dropped
+  // round ends the rounds. Steps from an inverted fit are kept (nothing to lose).
   JacobianMinimum jmin = find_fit_jacobian_minimum(design.solid);
   Eigen::Index kept_rows = row;
   // true: the step's fit (design.solid.P) is kept; false: P restored to the previous fit
