@@ -7,6 +7,7 @@
 #include "point_index.hpp"
 
 #include <Eigen/CholmodSupport>
+#include <fmt/format.h>
 #include <Eigen/LU>
 #include <Eigen/SparseCore>
 
@@ -82,17 +83,22 @@ Eigen::SparseMatrix<double> calc_stiffness_matrix(const TetMesh& mesh) {
 }
 
 VecX solve_laplace(const TetMesh& mesh, const std::vector<int>& zero_vertices,
-                   const std::vector<int>& one_vertices) {
+                   const std::vector<int>& one_vertices, std::string_view zero_name,
+                   std::string_view one_name) {
   if (zero_vertices.empty() || one_vertices.empty())
-    throw_bad_input("the Laplace problem needs vertices with value 0 (origin) and 1 (insertion)");
+    throw_bad_input(fmt::format("the Laplace problem needs vertices with value 0 ({}) and 1 ({}); "
+                                "{} has none",
+                                zero_name, one_name,
+                                zero_vertices.empty() ? zero_name : one_name),
+                    {.suggestion = "check that both areas lie on the muscle surface"});
   const Eigen::Index n = mesh.num_vertices();
   VecX u = VecX::Zero(n);
   std::vector<int> role(n, -1);  // -1 free, 0 / 1 fixed value
   for (int v : zero_vertices) role.at(v) = 0;
   for (int v : one_vertices) {
     if (role.at(v) == 0)
-      throw_bad_input("a vertex belongs to both the origin and the insertion area",
-                      {.suggestion = "give disjoint attachment areas"});
+      throw_bad_input(fmt::format("a vertex belongs to both {} and {}", zero_name, one_name),
+                      {.suggestion = "give disjoint areas"});
     role[v] = 1;
     u(v) = 1.0;
   }
@@ -162,7 +168,8 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
                                                   towards_origin.norm() > 0.0
                                                       ? Vec3(towards_origin.normalized())
                                                       : Vec3::UnitZ());
-    field.u_along = solve_laplace(field.tets, ends.origin.vertices, ends.insertion.vertices);
+    field.u_along = solve_laplace(field.tets, ends.origin.vertices, ends.insertion.vertices,
+                                  "the origin end region", "the insertion end region");
     Points3 tet_along, vertex_along;
     calc_field_gradients(field.tets, field.u_along, tet_along, vertex_along);
     const double ca = std::cos(options.pennation_rad), sa = std::sin(options.pennation_rad);
@@ -173,7 +180,8 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
     // aponeuroses, as the transmural potential of Bayer et al. 2012); otherwise grad(u).
     Points3 tet_across = field.tet_gradient, vertex_across = field.vertex_gradient;
     if (to_aponeurosis && !areas.face_minus.empty() && !areas.face_plus.empty()) {
-      const VecX u_t = solve_laplace(field.tets, areas.face_minus, areas.face_plus);
+      const VecX u_t = solve_laplace(field.tets, areas.face_minus, areas.face_plus,
+                                     "the -x aponeurosis face", "the +x aponeurosis face");
       calc_field_gradients(field.tets, u_t, tet_across, vertex_across);
     }
     const auto blend = [&](Points3& out, const Points3& across, const Points3& along) {

@@ -5,6 +5,8 @@
 
 #include <gtest/gtest.h>
 
+#include <string>
+
 #include <cmath>
 
 using namespace fascicle;
@@ -79,6 +81,22 @@ TEST(Laplace, MissingBoundaryIsAnError) {
   const TetMesh t = calc_tet_mesh(make_box(Vec3(0.01, 0.01, 0.01)));
   EXPECT_THROW(solve_laplace(t, {}, {0}), Error);
   EXPECT_THROW(solve_laplace(t, {0}, {0}), Error);
+  // The messages name the sets as the caller calls them (aponeurosis faces, not origin/insertion).
+  const auto message = [&](const std::vector<int>& zero, const std::vector<int>& one) {
+    try {
+      solve_laplace(t, zero, one, "the -x aponeurosis face", "the +x aponeurosis face");
+    } catch (const Error& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  const std::string empty_plus = message({0}, {});
+  EXPECT_NE(empty_plus.find("the +x aponeurosis face has none"), std::string::npos) << empty_plus;
+  EXPECT_EQ(empty_plus.find("origin"), std::string::npos) << empty_plus;
+  const std::string shared = message({0}, {0});
+  EXPECT_NE(shared.find("both the -x aponeurosis face and the +x aponeurosis face"),
+            std::string::npos)
+      << shared;
 }
 
 TEST(HarmonicFibres, CylinderStreamlinesAreStraightAndFullLength) {

@@ -10,6 +10,7 @@
 
 #include <Eigen/SparseCore>
 
+#include <string_view>
 #include <vector>
 
 namespace fascicle {
@@ -19,10 +20,13 @@ namespace fascicle {
 Eigen::SparseMatrix<double> calc_stiffness_matrix(const TetMesh& mesh);
 
 // Solves K u = 0 with u = 0 on `zero_vertices` and u = 1 on `one_vertices` by sparse Cholesky
-// (CHOLMOD) on the free vertices. Throws bad_input when a set is empty and numerical when the
-// factorisation fails (a part of the mesh without any Dirichlet vertex).
+// (CHOLMOD) on the free vertices. Throws bad_input when a set is empty or the sets share a vertex
+// (the messages name the sets by `zero_name` / `one_name`) and numerical when the factorisation
+// fails (a part of the mesh without any Dirichlet vertex).
 VecX solve_laplace(const TetMesh& mesh, const std::vector<int>& zero_vertices,
-                   const std::vector<int>& one_vertices);
+                   const std::vector<int>& one_vertices,
+                   std::string_view zero_name = "the origin area",
+                   std::string_view one_name = "the insertion area");
 
 // A solved field, immutable, reusable for any number of fibre tracings.
 struct HarmonicField {
