@@ -5,9 +5,8 @@
 
 #include <gtest/gtest.h>
 
-#include <string>
-
 #include <cmath>
+#include <string>
 
 using namespace fascicle;
 
