@@ -10,6 +10,7 @@
 #include <Eigen/Dense>
 #include <Eigen/SparseCholesky>
 #include <benchmark/benchmark.h>
+#include <spdlog/spdlog.h>
 
 #include <cmath>
 #include <cstdio>
@@ -241,7 +242,10 @@ BENCHMARK(BM_SpatialPointCoordinates)->Unit(benchmark::kMillisecond);
 // pennation change and largest volume error. range(0): reuse_factorisation_steps (0: full
 // Newton). The fit keeps the slice parametrisation (no closest-point correction, no vertex
 // samples), as the scene's fallback does: the corrected 3 x 8 x 6 fit is inverted.
-void BM_SoleusContraction(benchmark::State& state) {
+// flags (BM_SoleusContractionVariant's second argument): bit 0 extrapolated Newton start, bit 1
+// refresh at contraction rate 0.5, bit 2 at 0.25,
+// bits 8.. the time step in ms (0: 1 ms).
+void run_soleus(benchmark::State& state, int reuse, int flags) {
   const auto mesh_path = std::filesystem::path(FASCICLE_DEFAULT_DATA_DIR) /
                          "visible_human_female/right/VHF_Right_Muscle_Soleus_smooth.stl";
   MeshFitOptions fo;
@@ -263,17 +267,30 @@ void BM_SoleusContraction(benchmark::State& state) {
   spec.attachments.push_back({"insertion", -1, find_end_layer(rest, 1)});
   auto m = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(rest, spec));
   SolverOptions o;
-  o.reuse_factorisation_steps = static_cast<int>(state.range(0));
+  o.reuse_factorisation_steps = reuse;
+  o.extrapolate_start = (flags & 1) != 0;
+  if (flags & 2) o.refresh_contraction_rate = 0.5;
+  if (flags & 4) o.refresh_contraction_rate = 0.25;
+  const int dt_ms = std::max(1, flags >> 8);
+  const int nsteps = 500 / dt_ms;
+  if (std::getenv("FASCICLE_DEBUG_DYN")) spdlog::set_level(spdlog::level::trace);
   double pennation0 = 0.0, pennation1 = 0.0, max_err = 0.0, stretch = 0.0;
-  int iterations = 0;
+  int iterations = 0, factorisations = 0;
   for (auto _ : state) {
     SolidDynamicsSolver solver(m, o);
     StepInputs in;
     in.excitation = 1.0;
     pennation0 = solver.calc_metrics(in).mean_pennation_rad;
-    for (int k = 0; k < 500; ++k) {
-      iterations += solver.step(1e-3, in).newton_iterations;
-      if (k % 10 == 9) max_err = std::max(max_err, std::abs(solver.calc_metrics(in).volume_error));
+    for (int k = 0; k < nsteps; ++k) {
+      const StepReport r = solver.step(dt_ms * 1e-3, in);
+      iterations += r.newton_iterations;
+      factorisations += r.factorisations;
+      if (std::getenv("FASCICLE_DEBUG_DYN"))
+        std::fprintf(stderr, "step %d t %.4f a %.4f newton %d factor %d\n", k,
+                     solver.get_state().time_s, solver.get_state().activation, r.newton_iterations,
+                     r.factorisations);
+      if ((k + 1) % std::max(1, 10 / dt_ms) == 0)
+        max_err = std::max(max_err, std::abs(solver.calc_metrics(in).volume_error));
     }
     const SolidMetrics end = solver.calc_metrics(in);
     pennation1 = end.mean_pennation_rad;
@@ -284,9 +301,19 @@ void BM_SoleusContraction(benchmark::State& state) {
   state.counters["pennation_end_deg"] = pennation1 * 180.0 / M_PI;
   state.counters["fibre_stretch_end"] = stretch;
   state.counters["max_volume_error"] = max_err;
-  state.counters["newton_per_step"] = iterations / (500.0 * state.iterations());
+  state.counters["newton_per_step"] = iterations / (double(nsteps) * state.iterations());
+  state.counters["factor_per_step"] = factorisations / (double(nsteps) * state.iterations());
+}
+void BM_SoleusContraction(benchmark::State& state) {
+  run_soleus(state, static_cast<int>(state.range(0)), 0);
 }
 BENCHMARK(BM_SoleusContraction)->Arg(0)->Arg(20)->Iterations(1)->Unit(benchmark::kSecond);
+// range(0): reuse_factorisation_steps; range(1): flags of run_soleus (1: extrapolated start;
+// 256 k: steps of k ms).
+void BM_SoleusContractionVariant(benchmark::State& state) {
+  run_soleus(state, static_cast<int>(state.range(0)), static_cast<int>(state.range(1)));
+}
+BENCHMARK(BM_SoleusContractionVariant)->Args({20, 1})->Args({20, 3})->Args({20, 5})->Args({20, 2})->Iterations(1)->Unit(benchmark::kSecond);
 
 }  // namespace
 

@@ -25,6 +25,8 @@ struct SolidDynamicsSolver::Workspace {
   ForceEvaluation fe;
   Eigen::SparseMatrix<double> A;     // system matrix, lower block pattern
   Eigen::SparseMatrix<double> D;     // Rayleigh damping, same pattern (values), may be empty
+  Eigen::SparseMatrix<double> D_stiff;  // its β K(rest) part alone (empty when β = 0): the α M
+                                        // part is applied with the node-level mass matrix
   VecX inertia_values;               // M in the pattern's value layout
   std::vector<int> zero_positions;   // entries coupling fixed dofs
   std::vector<int> diag_positions;   // diagonal entries of fixed dofs
@@ -83,6 +85,9 @@ struct SolidDynamicsSolver::Workspace {
     return ldlt.info() == Eigen::Success;
   }
   double size_m = 1.0;
+  double max_lumped_mass = 0.0;  // largest row sum of the mass matrix (kg)
+  VecX prev_v;                   // velocities at the start of the last accepted step
+  double prev_h = 0.0;           // its length (0: none, e.g. after set_state)
   double last_lambda = 0.0;  // multiplier of the exact volume constraint (warm start)
   double omega_max = 0.0;    // symplectic Euler: cached largest frequency (rad/s)
   int omega_age = -1;
@@ -112,6 +117,28 @@ VecX apply_mass(const Eigen::SparseMatrix<double>& M, const VecX& x) {
     yp[3 * J] = y0;
     yp[3 * J + 1] = y1;
     yp[3 * J + 2] = y2;
+  }
+  return y;
+}
+
+// y = M x for interleaved x that is zero on most nodes (e.g. only the attached ones): a scatter
+// over the columns of the nodes where x is non-zero (M symmetric).
+VecX apply_mass_sparse_input(const Eigen::SparseMatrix<double>& M, const VecX& x) {
+  const Eigen::Index n = M.rows();
+  VecX y = VecX::Zero(3 * n);
+  const int* outer = M.outerIndexPtr();
+  const int* inner = M.innerIndexPtr();
+  const double* val = M.valuePtr();
+  for (Eigen::Index I = 0; I < n; ++I) {
+    const double x0 = x[3 * I], x1 = x[3 * I + 1], x2 = x[3 * I + 2];
+    if (x0 == 0.0 && x1 == 0.0 && x2 == 0.0) continue;
+    for (int p = outer[I]; p < outer[I + 1]; ++p) {
+      const double v = val[p];
+      double* yj = y.data() + 3 * inner[p];
+      yj[0] += v * x0;
+      yj[1] += v * x1;
+      yj[2] += v * x2;
+    }
   }
   return y;
 }
@@ -169,12 +196,17 @@ SolidDynamicsSolver::SolidDynamicsSolver(std::shared_ptr<const SolidDynamicsMode
       material.spec.contact_bones.clear();
       ForceEvaluation k0;
       calc_forces_into(material, m.rest.P, {}, 0.0, true, {}, k0);
-      vals += m.spec.rayleigh_beta_s * Eigen::Map<const VecX>(k0.stiffness.valuePtr(), vals.size());
+      const VecX kvals =
+          m.spec.rayleigh_beta_s * Eigen::Map<const VecX>(k0.stiffness.valuePtr(), vals.size());
+      vals += kvals;
+      w.D_stiff = w.A;
+      Eigen::Map<VecX>(w.D_stiff.valuePtr(), kvals.size()) = kvals;
     }
     Eigen::Map<VecX>(w.D.valuePtr(), vals.size()) = vals;
   }
   const Vec3 lo = m.rest.P.colwise().minCoeff(), hi = m.rest.P.colwise().maxCoeff();
   w.size_m = std::max(1e-6, (hi - lo).norm());
+  w.max_lumped_mass = m.lumped_mass.size() > 0 ? m.lumped_mass.maxCoeff() : 0.0;
 }
 
 SolidDynamicsSolver::~SolidDynamicsSolver() = default;
@@ -189,6 +221,7 @@ void SolidDynamicsSolver::set_state(SolidState s) {
   initial_energy_ = NAN;
   ws_->omega_age = -1;
   ws_->factor_age = -1;
+  ws_->prev_h = 0.0;
 }
 
 void SolidDynamicsSolver::correct_state(const Points3& P, const Points3& V) {
@@ -198,6 +231,7 @@ void SolidDynamicsSolver::correct_state(const Points3& P, const Points3& V) {
                                 P.rows(), V.rows(), n));
   state_.P = P;
   state_.V = V;
+  ws_->prev_h = 0.0;  // the correction's velocity change is no acceleration to extrapolate
 }
 
 void SolidDynamicsSolver::project_volume(SolidState& s, double dt, StepReport& r) const {
@@ -272,8 +306,14 @@ StepReport SolidDynamicsSolver::step(double dt, const StepInputs& in) {
       // Backward Euler and quasi-static: the potential of the accepted Newton iterate (before
       // the volume projection's rounding-level correction) plus the kinetic energy.
       if (options_.integrator != Integrator::symplectic_euler && std::isfinite(ws_->last_potential_J)) {
+        // The kinetic energy is bounded by ½ max_I(Σ_J |M_IJ|) |v|² (Gershgorin; the entries of
+        // M are non-negative, so the row sums are the lumped masses); the exact ½ vᵀMv (a mass
+        // product) is needed only when that bound could cross the blow-up limit.
         const VecX v = flatten_points(trial.V);
-        E = ws_->last_potential_J + 0.5 * v.dot(apply_mass(m.mass_matrix, v));
+        E = ws_->last_potential_J + 0.5 * ws_->max_lumped_mass * v.squaredNorm();
+        const double limit = initial_energy_ + options_.energy_blowup_factor *
+                                                   (std::abs(initial_energy_) + m.mass_kg * 1.0);
+        if (!(E <= limit)) E = ws_->last_potential_J + 0.5 * v.dot(apply_mass(m.mass_matrix, v));
       } else {
         E = calc_energies(m, trial, in.X_now_rest).total();
       }
@@ -293,6 +333,8 @@ StepReport SolidDynamicsSolver::step(double dt, const StepInputs& in) {
            .suggestion = "reduce the time step (explicit integration is only stable below 2/w_max) "
                          "or use backward Euler"});
     }
+    ws_->prev_v = flatten_points(state_.V);
+    ws_->prev_h = h;
     state_ = std::move(trial);
     remaining -= h;
     total.substeps += r.substeps;
@@ -375,6 +417,9 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   const double inertia = quasi ? 1e-6 : 1.0;  // quasi-static: a tiny mass regularises free modes
   const VecX x_tilde = quasi ? x_n : VecX(x_n + h * v_n);
   VecX x = x_tilde;
+  const bool extrapolated = options_.extrapolate_start && !quasi && w.prev_h > 0.0 &&
+                            w.prev_v.size() == x.size();
+  if (extrapolated) x += (h * h / w.prev_h) * (v_n - w.prev_v);
   for (int i = 0; i < 3 * n; ++i)
     if (w.fixed_dof[i]) x[i] = target[i];
   const Points3 V_start = s.V;
@@ -399,15 +444,22 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
                         d_vol * (w.fe.volume_m3 - V_n);
     return 0.0;
   };
+  // Rayleigh damping D (x − x_n) = α M (x − x̃ + h v_n) + β K(rest) (x − x_n): the mass part
+  // from M (x − x̃) (which the merit and residual share) and M v_n (once per step).
+  const bool damped = has_D && !quasi;
+  const double alpha_D = sp.rayleigh_alpha_1_s;
+  const VecX Mvn = damped && alpha_D > 0.0 ? apply_mass(m.mass_matrix, v_n) : VecX();
+  auto damping_force = [&](const VecX& xx, const VecX& Mdx) {
+    VecX out = alpha_D > 0.0 ? VecX(alpha_D * (Mdx + h * Mvn)) : VecX::Zero(xx.size());
+    if (w.D_stiff.nonZeros() > 0) out += apply_lower(w.D_stiff, xx - x_n);
+    return out;
+  };
   // M (x − x̃) is shared by the merit and the residual of the same point (Mdx below).
   auto merit = [&](const VecX& xx, const ForceEvaluation& fe, const VecX& Mdx) {
     const VecX dx = xx - x_tilde;
     double phi = 0.5 * inertia / (h * h) * dx.dot(Mdx) + fe.energy_J +
                  fe.active_energy_J - f_ext.dot(xx);
-    if (has_D && !quasi) {
-      const VecX d = xx - x_n;
-      phi += 0.5 / h * d.dot(apply_lower(w.D, d));
-    }
+    if (damped) phi += 0.5 / h * (xx - x_n).dot(damping_force(xx, Mdx));
     if (d_vol > 0.0) phi += 0.5 * d_vol * (fe.volume_m3 - V_n) * (fe.volume_m3 - V_n);
     if (exact) phi += lambda * (fe.volume_m3 - V0);  // the Lagrangian at the current multiplier
     return phi;
@@ -415,7 +467,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   // Residual of the step equations without the multiplier term; g receives the masked ∇V.
   auto residual = [&](const VecX& xx, const ForceEvaluation& fe, const VecX& Mdx, VecX& g) {
     VecX r = inertia / (h * h) * Mdx - fe.force - f_ext;
-    if (has_D && !quasi) r += apply_lower(w.D, xx - x_n) / h;
+    if (damped) r += damping_force(xx, Mdx) / h;
     if (penalty || exact) {
       g = fe.volume_gradient;
       for (int i = 0; i < 3 * n; ++i)
@@ -428,12 +480,16 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   };
   const double tol = options_.newton_tolerance * w.size_m;
   calc_forces_into(m, unflatten_points(x), V_start, a, false, in.X_now_rest, w.fe, 0.0, fv_from, h);
-  VecX Mdx = apply_mass(m.mass_matrix, x - x_tilde);
+  // x − x̃ is non-zero only on the attached dofs here.
+  VecX Mdx = extrapolated ? apply_mass(m.mass_matrix, x - x_tilde)
+                          : apply_mass_sparse_input(m.mass_matrix, x - x_tilde);
+  VecX My;  // M y of the Newton direction: trial points' M (x + α y − x̃) = Mdx + α My
   bool factored = false;
   bool converged = false;
   int nonmonotone_left = 3;
   bool shift_changed = false;
   double shift = 0.0;  // Levenberg–Marquardt shift: A + shift·M/h² when Newton's direction fails
+  double last_step_norm = 0.0, last_rate = 0.0;  // |Δx| of the last iteration and the contraction
   for (int it = 0; it < options_.max_newton_iterations; ++it) {
     ++rep.newton_iterations;
     const VecX d = x - x_n;
@@ -443,7 +499,9 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     const bool reuse = options_.reuse_factorisation_steps > 0 && it == 0 && w.factor_age >= 0 &&
                        w.factor_age < options_.reuse_factorisation_steps && w.factor_h == h;
     const bool modified = !options_.refresh_stiffness || options_.reuse_factorisation_steps > 0;
-    const bool slow = factored && it >= 4 && modified && rep.factorisations == 0;
+    const bool slow = factored && modified && rep.factorisations == 0 &&
+                      (it >= 4 || (options_.refresh_contraction_rate > 0.0 && it >= 2 &&
+                                   last_rate > options_.refresh_contraction_rate));
     if (reuse) {
       factored = true;
     } else if (!factored || !modified || slow || shift_changed) {
@@ -485,6 +543,11 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     }
     rep.residual = r.lpNorm<Eigen::Infinity>();
     if (!y.allFinite()) throw_numerical("the Newton step is not finite");
+    {
+      const double yn = y.lpNorm<Eigen::Infinity>();
+      last_rate = last_step_norm > 0.0 ? yn / last_step_norm : 0.0;
+      last_step_norm = yn;
+    }
     // Backtracking line search on the incremental potential (the Lagrangian for the exact
     // constraint); inverted trials are rejected.
     double phi = merit(x, w.fe, Mdx);
@@ -492,10 +555,11 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     bool accepted = false;
     ForceEvaluation trial_fe, full_fe;
     bool full_ok = false;  // the full step is not inverted (kept for a non-monotone step)
+    My = apply_mass(m.mass_matrix, y);
     auto accept = [&](const VecX& xt, ForceEvaluation& fe, VecX* Mdx_t) {
       x = xt;
       if (Mdx_t) std::swap(Mdx, *Mdx_t);
-      else Mdx = apply_mass(m.mass_matrix, x - x_tilde);
+      else Mdx += My;
       std::swap(w.fe.force, fe.force);
       w.fe.energy_J = fe.energy_J;
       w.fe.active_energy_J = fe.active_energy_J;
@@ -516,7 +580,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
         full_ok = true;
         full_fe = trial_fe;
       }
-      VecX Mdx_t = apply_mass(m.mass_matrix, xt - x_tilde);
+      VecX Mdx_t = Mdx + alpha * My;
       const double phi_t = merit(xt, trial_fe, Mdx_t);
       // The implicit force–velocity term has no potential: a clear drop of the residual is
       // accepted too.

@@ -241,6 +241,12 @@ struct SolverOptions {
   int max_step_halvings = 6;            // step-size control: failed steps are retried at dt/2
   double explicit_safety = 0.5;         // symplectic Euler: sub-step = safety × 2/ω_max
   double energy_blowup_factor = 1e3;    // error if the energy grows by this factor plus 1 J/kg
+  // Backward Euler: start Newton from x̃ + h² (v_n − v_{n−1})/h_{n−1} (constant acceleration
+  // from the last two steps) instead of x̃ = x_n + h v_n. Only the starting point changes.
+  bool extrapolate_start = false;
+  // With a kept factorisation (modified Newton): refresh it as soon as the observed contraction
+  // |Δx_k|/|Δx_{k−1}| of a step exceeds this rate (0: only after 4 slow iterations).
+  double refresh_contraction_rate = 0.0;
 };
 
 struct StepReport {
