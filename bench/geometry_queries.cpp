@@ -38,6 +38,22 @@ const MeshQuery& tibia_query() {
   return query;
 }
 
+// The two closest-point trees side by side (the "...Tree" benchmarks; argument tree: 0 = Embree
+// scene of Morton clusters, 1 = compact tree from Embree's SAH builder). The benchmarks without
+// "Tree" measure the default MeshQuery.
+MeshQueryOptions tree_options(std::int64_t tree) {
+  MeshQueryOptions o;
+  o.closest_point_tree = tree == 0 ? MeshQueryOptions::ClosestPointTree::embree_clusters
+                                   : MeshQueryOptions::ClosestPointTree::compact;
+  return o;
+}
+
+const MeshQuery& tibia_query(std::int64_t tree) {
+  static const MeshQuery clusters(tibia(), tree_options(0));
+  static const MeshQuery compact(tibia(), tree_options(1));
+  return tree == 0 ? clusters : compact;
+}
+
 // n points uniform in the bounding box enlarged by 10% (half extents x 1.1).
 Points3 box_points(const TriMesh& m, Eigen::Index n, std::uint64_t seed) {
   std::mt19937_64 rng(seed);
@@ -251,6 +267,85 @@ void BM_RayFirstHit(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations());
 }
 BENCHMARK(BM_RayFirstHit);
+
+// ----- Both trees side by side -----
+
+void BM_BuildTree(benchmark::State& state) {
+  const ThreadLimit one(1);
+  const TriMesh& m = mesh_of(state.range(1));
+  for (auto _ : state) {
+    MeshQuery q(m, tree_options(state.range(0)));
+    benchmark::DoNotOptimize(q);
+  }
+}
+BENCHMARK(BM_BuildTree)->ArgNames({"tree", "mesh"})->ArgsProduct({{0, 1}, {0, 1}})->Unit(benchmark::kMillisecond);
+
+void BM_RefitTree(benchmark::State& state) {
+  const ThreadLimit one(1);
+  const TriMesh& m = mesh_of(state.range(1));
+  const Points3 W = deformed_vertices(m);
+  MeshQuery q(m, tree_options(state.range(0)));
+  q.update_vertices(W);
+  bool toggle = true;
+  for (auto _ : state) {
+    q.update_vertices(toggle ? m.V : W);
+    toggle = !toggle;
+    benchmark::ClobberMemory();
+  }
+}
+BENCHMARK(BM_RefitTree)->ArgNames({"tree", "mesh"})->ArgsProduct({{0, 1}, {0, 1}})->Unit(benchmark::kMillisecond);
+
+// Single closest-point queries in random order: box points (which = 0) or near points (1).
+void BM_ClosestPointSingleTree(benchmark::State& state) {
+  const MeshQuery& q = tibia_query(state.range(0));
+  const Points3 P = state.range(1) == 0 ? box_points(tibia(), 100000, 1) : near_points(tibia(), 100000, 8);
+  Eigen::Index i = 0;
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(q.calc_closest_point(P.row(i).transpose()));
+    if (++i == P.rows()) i = 0;
+  }
+  state.SetItemsProcessed(state.iterations());
+}
+BENCHMARK(BM_ClosestPointSingleTree)->ArgNames({"tree", "near"})->ArgsProduct({{0, 1}, {0, 1}});
+
+// Batched closest points (1 M points, one thread): box or near points.
+void BM_ClosestPointBatchTree(benchmark::State& state) {
+  const ThreadLimit one(1);
+  const MeshQuery& q = tibia_query(state.range(0));
+  const Points3 P = state.range(1) == 0 ? box_points(tibia(), 1000000, 2) : near_points(tibia(), 1000000, 9);
+  for (auto _ : state) benchmark::DoNotOptimize(q.calc_closest_points(P));
+  state.SetItemsProcessed(state.iterations() * P.rows());
+}
+BENCHMARK(BM_ClosestPointBatchTree)->ArgNames({"tree", "near"})->ArgsProduct({{0, 1}, {0, 1}})->Unit(benchmark::kMillisecond);
+
+// Inside tests (box or near points) and first ray hits: Embree scenes over either tree's clusters.
+void BM_InsideSingleTree(benchmark::State& state) {
+  const MeshQuery& q = tibia_query(state.range(0));
+  const Points3 P = state.range(1) == 0 ? box_points(tibia(), 100000, 3) : near_points(tibia(), 100000, 10);
+  Eigen::Index i = 0;
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(q.calc_is_inside(Vec3(P.row(i).transpose())));
+    if (++i == P.rows()) i = 0;
+  }
+  state.SetItemsProcessed(state.iterations());
+}
+BENCHMARK(BM_InsideSingleTree)->ArgNames({"tree", "near"})->ArgsProduct({{0, 1}, {0, 1}});
+
+void BM_RayFirstHitTree(benchmark::State& state) {
+  const MeshQuery& q = tibia_query(state.range(0));
+  const Points3 P = box_points(tibia(), 100000, 6);
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> g(0.0, 1.0);
+  Points3 D(P.rows(), 3);
+  for (Eigen::Index i = 0; i < D.rows(); ++i) D.row(i) = Eigen::RowVector3d(g(rng), g(rng), g(rng));
+  Eigen::Index i = 0;
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(q.cast_ray(P.row(i).transpose(), D.row(i).transpose()));
+    if (++i == P.rows()) i = 0;
+  }
+  state.SetItemsProcessed(state.iterations());
+}
+BENCHMARK(BM_RayFirstHitTree)->ArgNames({"tree"})->Arg(0)->Arg(1);
 
 }  // namespace
 

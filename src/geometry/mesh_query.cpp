@@ -6,11 +6,16 @@
 
 #include <embree3/rtcore.h>
 
+#if defined(__SSE2__)
+#include <immintrin.h>
+#endif
+
 #include <algorithm>
 #include <array>
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <new>
 #include <string>
 #include <tuple>
 
@@ -145,6 +150,14 @@ constexpr int kMaxDescentSteps = 256;
 // The start-vertex grid has about this many cells per welded vertex (and at most kMaxGridCells).
 constexpr double kGridCellsPerVertex = 1.0;
 constexpr std::size_t kMaxGridCells = std::size_t{1} << 20;
+// Embree SAH costs for the compact tree's builder (a node visit vs one triangle of a leaf; the
+// float screen makes a triangle much cheaper than a node).
+constexpr float kSahTraversalCost = 1.0f;
+constexpr float kSahIntersectionCost = 0.1f;
+// Leaves are made as soon as a subtree holds at most this many triangles (fuller leaves: the
+// screen always evaluates 16 lanes) and the SAH counts triangles in blocks of this size.
+constexpr unsigned kSahMinLeafSize = 16;
+constexpr unsigned kSahBlockSize = 16;
 }  // namespace
 
 struct MeshQuery::Bvh {
@@ -168,7 +181,13 @@ struct MeshQuery::Bvh {
   // any triangle within limit).
   static constexpr double kFloatMargin = 0x1p-18;
   unsigned num_slots = 0;
-  unsigned slot_end(unsigned prim) const { return std::min(num_slots, (prim + 1) * kCluster); }
+  // Cluster c holds slots [cluster_begin[c], cluster_begin[c + 1]) (at most kCluster of them): runs
+  // of kCluster Morton-ordered slots for the Embree-scene closest points, the leaves of Embree's SAH
+  // builder (compact patches) for the compact tree. Its float data sits at soa[kSoaRows*kCluster*c].
+  std::vector<unsigned> cluster_begin;
+  unsigned num_clusters() const { return static_cast<unsigned>(cluster_begin.size()) - 1u; }
+  unsigned slot_begin(unsigned prim) const { return cluster_begin[prim]; }
+  unsigned slot_end(unsigned prim) const { return cluster_begin[prim + 1]; }
   std::vector<double> corners;  // per slot: a, b, c (9 doubles), read by the exact kernels
   std::vector<float> soa;       // per cluster: kSoaRows * kCluster floats
   std::vector<double> anchors;  // per cluster: 3 doubles, the origin of its float centres
@@ -205,6 +224,35 @@ struct MeshQuery::Bvh {
     }
     return grid_vertex[index];
   }
+
+  // The compact tree (MeshQueryOptions::ClosestPointTree::compact). Topology from Embree's SAH
+  // builder (rtcBuildBVH), stored as 4-wide nodes in depth-first preorder (children after their
+  // parent, so a reverse sweep refits). Child boxes in float, structure of arrays, rounded outward
+  // from the padded double boxes of the leaves, so one 4-lane sequence gives the 4 lower bounds of
+  // the distance. A child reference c >= 0 is a node, c < 0 the leaf (cluster) ~c.
+  // Leaf children also carry their slab-cylinder (see leaf_bound) in float, relative to the node's
+  // double anchor, so the 4 cylinder bounds come from one 4-lane sequence too. Inner children get
+  // R = h_hi = +inf, h_lo = -inf (their cylinder bound is 0).
+  struct alignas(16) Node4 {
+    float lo_x[4], lo_y[4], lo_z[4], hi_x[4], hi_y[4], hi_z[4];
+    std::int32_t child[4];
+    std::uint32_t valid = 0;   // bit k: child k exists
+    std::uint32_t leaves = 0;  // bit k: child k is a leaf
+    std::uint32_t unused[2] = {0, 0};
+    float cx[4], cy[4], cz[4], nx[4], ny[4], nz[4], r[4], h_lo[4], h_hi[4];
+    double anchor[3] = {0.0, 0.0, 0.0};
+  };
+  static constexpr std::size_t kLeafBoundSize = 9;  // centre (3), unit normal (3), R, h_lo, h_hi
+  static constexpr int kMaxTreeDepth = 64;
+  bool compact = false;
+  std::vector<Node4> nodes;
+  std::int32_t root = 0;
+  // Per leaf: a slab-cylinder {x : h_lo <= n.(x - c) <= h_hi, |in-plane offset| <= R} that holds
+  // all its triangles (c the anchor, n the area-weighted mean normal, zero if it vanishes).
+  std::vector<double> leaf_bound;
+  // Max over the nodes' leaf children of |centre - anchor| + R + max(|h_lo|, |h_hi|): any point
+  // within `limit` of such a leaf is within limit + node_extent of the anchor (float margins).
+  double node_extent = 0.0;
 
   Bvh() = default;
   Bvh(const Bvh&) = delete;
@@ -322,7 +370,7 @@ void bounds_callback(const RTCBoundsFunctionArguments* args) {
     lo[k] = std::numeric_limits<double>::infinity();
     hi[k] = -std::numeric_limits<double>::infinity();
   }
-  for (unsigned t = args->primID * MeshQuery::Bvh::kCluster; t < bvh->slot_end(args->primID); ++t) {
+  for (unsigned t = bvh->slot_begin(args->primID); t < bvh->slot_end(args->primID); ++t) {
     const double* c = bvh->corners.data() + 9 * static_cast<std::size_t>(t);
     for (int k = 0; k < 3; ++k) {
       lo[k] = std::min({lo[k], c[k], c[3 + k], c[6 + k]});
@@ -405,34 +453,174 @@ unsigned descend(const MeshQuery::Bvh& bvh, const Vec3& p, unsigned v) {
 void seed_from_vertex(PointQueryState* q, unsigned v) {
   const MeshQuery::Bvh& bvh = *q->bvh;
   v = descend(bvh, q->p, v);
+  if (bvh.compact) {
+    // The compact traversal visits the nearest leaves first and so tests the triangles around v
+    // anyway: seed only the bound. The vertex lies on the surface, so its distance (widened
+    // against rounding) is an upper bound of the answer; no triangle is chosen yet.
+    const double d2 = bvh.vertex_distance2(v, q->p) * (1.0 + 1e-12);
+    if (d2 < q->best_d2) {
+      q->best_d2 = d2;
+      q->best_limit = std::sqrt(d2) * (1.0 + 1e-12);
+    }
+    return;
+  }
   for (unsigned k = bvh.ring_start[v]; k < bvh.ring_start[v + 1]; ++k) test_slot(q, bvh.ring_slots[k]);
 }
 
-bool point_query_callback(RTCPointQueryFunctionArguments* args) {
+// Screens one cluster against the best distance so far and tests the survivors exactly; true if
+// the best improved.
+bool screen_cluster(PointQueryState* q, unsigned cluster) {
   constexpr unsigned K = MeshQuery::Bvh::kCluster;
-  auto* q = static_cast<PointQueryState*>(args->userPtr);
   const MeshQuery::Bvh& bvh = *q->bvh;
-  const unsigned first = args->primID * K;
-  const unsigned count = bvh.slot_end(args->primID) - first;
+  const unsigned first = bvh.slot_begin(cluster);
+  const unsigned count = bvh.slot_end(cluster) - first;
   // A triangle is tested exactly unless its lower bound exceeds the best distance (plus the
   // rounding margin): such a triangle can neither win nor tie.
   const double limit = q->best_limit + q->margin +
                        MeshQuery::Bvh::kFloatMargin * (q->best_limit + 2.0 * bvh.cluster_extent);
-  const double* anchor = bvh.anchors.data() + 3 * static_cast<std::size_t>(args->primID);
-  unsigned mask = find_candidates(bvh.soa.data() + MeshQuery::Bvh::kSoaRows * K * args->primID,
+  const double* anchor = bvh.anchors.data() + 3 * static_cast<std::size_t>(cluster);
+  unsigned mask = find_candidates(bvh.soa.data() + MeshQuery::Bvh::kSoaRows * K * cluster,
                                   static_cast<float>(q->p.x() - anchor[0]),
                                   static_cast<float>(q->p.y() - anchor[1]),
                                   static_cast<float>(q->p.z() - anchor[2]),
                                   to_float_or_infinity(limit * limit * (1.0 + 1e-6)));
-  if (count < K) mask &= (1u << count) - 1u;  // the last cluster may be partly empty
+  if (count < K) mask &= (1u << count) - 1u;  // clusters may be partly empty
   bool improved = false;
   while (mask != 0) {
     const auto k = static_cast<unsigned>(std::countr_zero(mask));
     mask &= mask - 1u;
     improved = test_slot(q, first + k) || improved;
   }
+  return improved;
+}
+
+bool point_query_callback(RTCPointQueryFunctionArguments* args) {
+  auto* q = static_cast<PointQueryState*>(args->userPtr);
+  const bool improved = screen_cluster(q, args->primID);
   if (improved) args->query->radius = padded_radius(q->best_limit, q->radius_pad);
   return improved;
+}
+
+// Whether a leaf of the compact tree may hold a triangle within the best distance (plus the
+// margin): false when p is farther from the leaf's slab-cylinder (h = n.(p - c) in [h_lo, h_hi],
+// in-plane offset within R; the distance to that convex set is sqrt(dh^2 + dl^2)).
+[[maybe_unused]] bool leaf_may_qualify(const PointQueryState* q, unsigned cluster) {
+  const double* b = q->bvh->leaf_bound.data() + MeshQuery::Bvh::kLeafBoundSize * cluster;
+  const double dx = q->p.x() - b[0], dy = q->p.y() - b[1], dz = q->p.z() - b[2];
+  const double h = dx * b[3] + dy * b[4] + dz * b[5];
+  const double dh = std::max({b[7] - h, h - b[8], 0.0});
+  const double lx = dx - h * b[3], ly = dy - h * b[4], lz = dz - h * b[5];
+  const double dl = std::max(std::sqrt(lx * lx + ly * ly + lz * lz) - b[6], 0.0);
+  const double limit = q->best_limit + q->margin;
+  return dh * dh + dl * dl <= limit * limit;
+}
+
+// Squared float radius for the compact traversal: the padded radius squared (the padding covers the
+// few float roundings of the box distances, ~1e-7 relative, many times over).
+float padded_radius2(double d, double radius_pad) {
+  const float r = padded_radius(d, radius_pad);
+  return r * r;
+}
+
+// Closest point by the compact tree: a stack of (child, squared box distance), children pushed
+// farthest first so the nearest is visited next; entries farther than the current best (padded,
+// in float) are dropped when popped. Same exactness argument as Embree's culling: every float box
+// contains its padded double triangles, and the radius covers the float rounding of p.
+void closest_compact(PointQueryState* q) {
+  const MeshQuery::Bvh& bvh = *q->bvh;
+  struct Entry {
+    std::int32_t item;
+    float d2;
+  };
+  std::array<Entry, 3 * MeshQuery::Bvh::kMaxTreeDepth + 4> stack;
+  std::size_t top = 0;
+  stack[top++] = {bvh.root, 0.0f};
+  float r2 = padded_radius2(q->best_limit, q->radius_pad);
+  // The leaf children's slab-cylinder test in float, relative to the node's anchor: accepted
+  // within the best distance plus the rounding margin plus kFloatMargin of the magnitudes involved
+  // (like the screens: |p - anchor| <= limit + node_extent for any leaf within the limit).
+  const auto cylinder_limit2 = [&] {
+    const double limit = q->best_limit + q->margin +
+                         MeshQuery::Bvh::kFloatMargin * (q->best_limit + 2.0 * bvh.node_extent);
+    return to_float_or_infinity(limit * limit * (1.0 + 1e-6));
+  };
+  float c2 = cylinder_limit2();
+  const float px = static_cast<float>(q->p.x()), py = static_cast<float>(q->p.y()),
+              pz = static_cast<float>(q->p.z());
+#if defined(__SSE2__)
+  const __m128 px4 = _mm_set1_ps(px), py4 = _mm_set1_ps(py), pz4 = _mm_set1_ps(pz);
+  const __m128 zero = _mm_setzero_ps();
+#endif
+  while (top > 0) {
+    const Entry e = stack[--top];
+    if (!(e.d2 <= r2)) continue;
+    if (e.item < 0) {
+      // Leaves passed the slab-cylinder test when pushed; the best may have improved since.
+      if (screen_cluster(q, static_cast<unsigned>(~e.item))) {
+        r2 = padded_radius2(q->best_limit, q->radius_pad);
+        c2 = cylinder_limit2();
+      }
+      continue;
+    }
+    const MeshQuery::Bvh::Node4& node = bvh.nodes[static_cast<std::size_t>(e.item)];
+    alignas(16) float d2[4];
+#if defined(__SSE2__)
+    const __m128 dx = _mm_max_ps(_mm_max_ps(_mm_sub_ps(_mm_loadu_ps(node.lo_x), px4),
+                                            _mm_sub_ps(px4, _mm_loadu_ps(node.hi_x))), zero);
+    const __m128 dy = _mm_max_ps(_mm_max_ps(_mm_sub_ps(_mm_loadu_ps(node.lo_y), py4),
+                                            _mm_sub_ps(py4, _mm_loadu_ps(node.hi_y))), zero);
+    const __m128 dz = _mm_max_ps(_mm_max_ps(_mm_sub_ps(_mm_loadu_ps(node.lo_z), pz4),
+                                            _mm_sub_ps(pz4, _mm_loadu_ps(node.hi_z))), zero);
+    const __m128 dd = _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dx), _mm_mul_ps(dy, dy)), _mm_mul_ps(dz, dz));
+    _mm_store_ps(d2, dd);
+    unsigned mask = static_cast<unsigned>(_mm_movemask_ps(_mm_cmple_ps(dd, _mm_set1_ps(r2)))) & node.valid;
+    if ((mask & node.leaves) != 0) {
+      // Slab-cylinders of the leaf children (inner children have R = inf and pass).
+      const __m128 rx = _mm_set1_ps(static_cast<float>(q->p.x() - node.anchor[0]));
+      const __m128 ry = _mm_set1_ps(static_cast<float>(q->p.y() - node.anchor[1]));
+      const __m128 rz = _mm_set1_ps(static_cast<float>(q->p.z() - node.anchor[2]));
+      const __m128 ux = _mm_sub_ps(rx, _mm_loadu_ps(node.cx));
+      const __m128 uy = _mm_sub_ps(ry, _mm_loadu_ps(node.cy));
+      const __m128 uz = _mm_sub_ps(rz, _mm_loadu_ps(node.cz));
+      const __m128 nx = _mm_loadu_ps(node.nx), ny = _mm_loadu_ps(node.ny), nz = _mm_loadu_ps(node.nz);
+      const __m128 h = _mm_add_ps(_mm_add_ps(_mm_mul_ps(ux, nx), _mm_mul_ps(uy, ny)), _mm_mul_ps(uz, nz));
+      const __m128 dh = _mm_max_ps(_mm_max_ps(_mm_sub_ps(_mm_loadu_ps(node.h_lo), h),
+                                              _mm_sub_ps(h, _mm_loadu_ps(node.h_hi))), zero);
+      const __m128 lx = _mm_sub_ps(ux, _mm_mul_ps(h, nx));
+      const __m128 ly = _mm_sub_ps(uy, _mm_mul_ps(h, ny));
+      const __m128 lz = _mm_sub_ps(uz, _mm_mul_ps(h, nz));
+      const __m128 l = _mm_sqrt_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(lx, lx), _mm_mul_ps(ly, ly)), _mm_mul_ps(lz, lz)));
+      const __m128 dl = _mm_max_ps(_mm_sub_ps(l, _mm_loadu_ps(node.r)), zero);
+      const __m128 cyl = _mm_add_ps(_mm_mul_ps(dh, dh), _mm_mul_ps(dl, dl));
+      mask &= static_cast<unsigned>(_mm_movemask_ps(_mm_cmple_ps(cyl, _mm_set1_ps(c2))));
+    }
+#else
+    unsigned mask = 0;
+    for (unsigned k = 0; k < 4; ++k) {
+      const float dx = std::max({node.lo_x[k] - px, px - node.hi_x[k], 0.0f});
+      const float dy = std::max({node.lo_y[k] - py, py - node.hi_y[k], 0.0f});
+      const float dz = std::max({node.lo_z[k] - pz, pz - node.hi_z[k], 0.0f});
+      d2[k] = dx * dx + dy * dy + dz * dz;
+      if (d2[k] <= r2 && ((node.leaves & (1u << k)) == 0 || leaf_may_qualify(q, static_cast<unsigned>(~node.child[k])))) {
+        mask |= 1u << k;
+      }
+    }
+    mask &= node.valid;
+#endif
+    // Push the surviving children farthest first (insertion into the stack top, at most 4).
+    const std::size_t base = top;
+    while (mask != 0) {
+      const auto k = static_cast<unsigned>(std::countr_zero(mask));
+      mask &= mask - 1u;
+      const Entry c{node.child[k], d2[k]};
+      std::size_t j = top++;
+      while (j > base && stack[j - 1].d2 < c.d2) {
+        stack[j] = stack[j - 1];
+        --j;
+      }
+      stack[j] = c;
+    }
+  }
 }
 
 // What a ray carries through Embree. The Embree context must be the first member: the intersect
@@ -488,7 +676,7 @@ void intersect_callback(const RTCIntersectFunctionNArguments* args) {
   if (args->N != 1 || args->valid[0] == 0) return;
   auto* r = reinterpret_cast<RayState*>(args->context);
   constexpr unsigned K = MeshQuery::Bvh::kCluster;
-  const unsigned first = args->primID * K;
+  const unsigned first = r->bvh->slot_begin(args->primID);
   const unsigned count = r->bvh->slot_end(args->primID) - first;
   // Exact (double) tests only for the triangles whose bounding sphere the line meets: the others
   // can neither be hit nor grazed.
@@ -613,7 +801,7 @@ namespace {
 // by update_vertices (same slots, new positions).
 void fill_slots(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
   constexpr unsigned K = MeshQuery::Bvh::kCluster;
-  const std::size_t num_clusters = (bvh.num_slots + K - 1) / K;
+  const std::size_t num_clusters = bvh.num_clusters();
   bvh.corners.resize(9 * static_cast<std::size_t>(bvh.num_slots));
   bvh.soa.assign(MeshQuery::Bvh::kSoaRows * K * num_clusters, 0.0f);
   bvh.anchors.resize(3 * num_clusters);
@@ -622,8 +810,8 @@ void fill_slots(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
   // Serial on purpose: a parallel_for here made the build ~20 % dearer in CPU time (TBB's
   // workers spinning), and callers refit several meshes in parallel anyway.
   for (std::size_t cluster = 0; cluster < num_clusters; ++cluster) {
-    const std::size_t first = cluster * K;
-    const std::size_t count = std::min<std::size_t>(K, bvh.num_slots - first);
+    const std::size_t first = bvh.cluster_begin[cluster];
+    const std::size_t count = bvh.cluster_begin[cluster + 1] - first;
     std::array<Vec3, K> centres;
     Vec3 anchor = Vec3::Zero();
     for (std::size_t k = 0; k < count; ++k) {
@@ -761,7 +949,7 @@ void build_scene(MeshQuery::Bvh& bvh, bool refittable) {
   rtcSetSceneBuildQuality(bvh.scene, refittable ? RTC_BUILD_QUALITY_LOW : RTC_BUILD_QUALITY_HIGH);
   RTCGeometry geom = rtcNewGeometry(bvh.device, RTC_GEOMETRY_TYPE_USER);
   if (refittable) rtcSetGeometryBuildQuality(geom, RTC_BUILD_QUALITY_REFIT);
-  rtcSetGeometryUserPrimitiveCount(geom, (bvh.num_slots + MeshQuery::Bvh::kCluster - 1) / MeshQuery::Bvh::kCluster);
+  rtcSetGeometryUserPrimitiveCount(geom, bvh.num_clusters());
   rtcSetGeometryUserData(geom, &bvh);
   rtcSetGeometryBoundsFunction(geom, bounds_callback, nullptr);
   rtcSetGeometryIntersectFunction(geom, intersect_callback);
@@ -775,6 +963,276 @@ void build_scene(MeshQuery::Bvh& bvh, bool refittable) {
   if (const RTCError err = rtcGetDeviceError(bvh.device); err != RTC_ERROR_NONE) {
     throw_internal("Embree failed to build the BVH (error code " +
                    std::to_string(static_cast<int>(err)) + ")");
+  }
+}
+
+// ----- The compact tree: Embree's SAH builder, our layout and traversal -----------------------
+
+// Build items handed back by rtcBuildBVH's callbacks (allocated by Embree's thread-local
+// allocator, freed with the RTCBVH).
+struct BuildItem {
+  bool leaf;
+  unsigned count;
+};
+struct BuildNode {
+  BuildItem head;
+  void* children[4];
+};
+struct BuildLeaf {
+  BuildItem head;
+  unsigned prims[RTC_BUILD_MAX_PRIMITIVES_PER_LEAF];
+};
+
+void* create_build_node(RTCThreadLocalAllocator alloc, unsigned child_count, void* /*user*/) {
+  void* mem = rtcThreadLocalAlloc(alloc, sizeof(BuildNode), 16);
+  auto* node = new (mem) BuildNode{};
+  node->head = {false, child_count};
+  return node;
+}
+
+void set_build_children(void* node_ptr, void** children, unsigned child_count, void* /*user*/) {
+  auto* node = static_cast<BuildNode*>(node_ptr);
+  for (unsigned k = 0; k < child_count && k < 4; ++k) node->children[k] = children[k];
+  node->head.count = std::min(child_count, 4u);
+}
+
+void set_build_bounds(void* /*node*/, const RTCBounds** /*bounds*/, unsigned /*count*/, void* /*user*/) {
+  // Unused: the node boxes are recomputed from the double triangles (refit_compact_tree).
+}
+
+void* create_build_leaf(RTCThreadLocalAllocator alloc, const RTCBuildPrimitive* prims, std::size_t count,
+                        void* /*user*/) {
+  void* mem = rtcThreadLocalAlloc(alloc, sizeof(BuildLeaf), 16);
+  auto* leaf = new (mem) BuildLeaf{};
+  leaf->head = {true, static_cast<unsigned>(std::min<std::size_t>(count, RTC_BUILD_MAX_PRIMITIVES_PER_LEAF))};
+  for (unsigned k = 0; k < leaf->head.count; ++k) leaf->prims[k] = prims[k].primID;
+  std::sort(leaf->prims, leaf->prims + leaf->head.count);
+  return leaf;
+}
+
+// Copies Embree's pointer tree into Bvh::nodes (depth-first preorder) and appends the leaves'
+// triangles to `order` (the slot order); returns the child reference of `item`.
+std::int32_t flatten_build_tree(MeshQuery::Bvh& bvh, const void* item, int depth,
+                                std::vector<Eigen::Index>& order, int& max_depth) {
+  max_depth = std::max(max_depth, depth);
+  if (depth > MeshQuery::Bvh::kMaxTreeDepth) throw_internal("MeshQuery: the SAH tree is too deep");
+  const auto* head = static_cast<const BuildItem*>(item);
+  if (head->leaf) {
+    const auto* leaf = static_cast<const BuildLeaf*>(item);
+    if (leaf->head.count == 0 || leaf->head.count > MeshQuery::Bvh::kCluster) {
+      throw_internal("MeshQuery: Embree's builder made a leaf of " + std::to_string(leaf->head.count) +
+                     " triangles (expected 1 to 16)");
+    }
+    const auto cluster = static_cast<std::int32_t>(bvh.cluster_begin.size()) - 1;
+    for (unsigned k = 0; k < leaf->head.count; ++k) order.push_back(static_cast<Eigen::Index>(leaf->prims[k]));
+    bvh.cluster_begin.push_back(static_cast<unsigned>(order.size()));
+    return ~cluster;
+  }
+  const auto* node = static_cast<const BuildNode*>(item);
+  const auto index = static_cast<std::int32_t>(bvh.nodes.size());
+  bvh.nodes.emplace_back();
+  MeshQuery::Bvh::Node4 flat{};
+  for (unsigned k = 0; k < 4; ++k) {
+    flat.lo_x[k] = flat.lo_y[k] = flat.lo_z[k] = std::numeric_limits<float>::infinity();
+    flat.hi_x[k] = flat.hi_y[k] = flat.hi_z[k] = -std::numeric_limits<float>::infinity();
+  }
+  for (unsigned k = 0; k < node->head.count; ++k) {
+    flat.child[k] = flatten_build_tree(bvh, node->children[k], depth + 1, order, max_depth);
+    flat.valid |= 1u << k;
+    if (flat.child[k] < 0) flat.leaves |= 1u << k;
+  }
+  bvh.nodes[static_cast<std::size_t>(index)] = flat;
+  return index;
+}
+
+// Builds the compact tree's topology with Embree's SAH builder over the triangles' float boxes
+// (binned SAH, no spatial splits, so every triangle lands in exactly one leaf) and returns the
+// slot order: the leaves' triangles in depth-first order. Sets cluster_begin, nodes and root; the
+// boxes and leaf bounds come from refit_compact_tree once the slots are filled.
+std::vector<Eigen::Index> build_compact_tree(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
+  const Eigen::Index nf = mesh.F.rows();
+  std::vector<RTCBuildPrimitive> prims(static_cast<std::size_t>(nf));
+  for (Eigen::Index f = 0; f < nf; ++f) {
+    double lo[3], hi[3];
+    for (int k = 0; k < 3; ++k) {
+      lo[k] = std::min({mesh.V(mesh.F(f, 0), k), mesh.V(mesh.F(f, 1), k), mesh.V(mesh.F(f, 2), k)});
+      hi[k] = std::max({mesh.V(mesh.F(f, 0), k), mesh.V(mesh.F(f, 1), k), mesh.V(mesh.F(f, 2), k)});
+    }
+    RTCBuildPrimitive& p = prims[static_cast<std::size_t>(f)];
+    p.lower_x = round_down(lo[0]);
+    p.lower_y = round_down(lo[1]);
+    p.lower_z = round_down(lo[2]);
+    p.upper_x = round_up(hi[0]);
+    p.upper_y = round_up(hi[1]);
+    p.upper_z = round_up(hi[2]);
+    p.geomID = 0;
+    p.primID = static_cast<unsigned>(f);
+  }
+  RTCBVH builder = rtcNewBVH(bvh.device);
+  RTCBuildArguments args = rtcDefaultBuildArguments();
+  args.byteSize = sizeof(args);
+  args.buildQuality = RTC_BUILD_QUALITY_MEDIUM;  // binned SAH; HIGH would add spatial splits
+  args.buildFlags = RTC_BUILD_FLAG_NONE;
+  args.maxBranchingFactor = 4;
+  args.maxDepth = MeshQuery::Bvh::kMaxTreeDepth;
+  args.sahBlockSize = kSahBlockSize;
+  args.minLeafSize = kSahMinLeafSize;
+  args.maxLeafSize = MeshQuery::Bvh::kCluster;
+  args.traversalCost = kSahTraversalCost;
+  args.intersectionCost = kSahIntersectionCost;
+  args.bvh = builder;
+  args.primitives = prims.data();
+  args.primitiveCount = prims.size();
+  args.primitiveArrayCapacity = prims.size();
+  args.createNode = create_build_node;
+  args.setNodeChildren = set_build_children;
+  args.setNodeBounds = set_build_bounds;
+  args.createLeaf = create_build_leaf;
+  args.splitPrimitive = nullptr;
+  args.buildProgress = nullptr;
+  args.userPtr = nullptr;
+  void* root = rtcBuildBVH(&args);
+  std::vector<Eigen::Index> order;
+  order.reserve(static_cast<std::size_t>(nf));
+  bvh.nodes.clear();
+  bvh.cluster_begin.assign(1, 0u);
+  int max_depth = 0;
+  try {
+    if (root == nullptr || rtcGetDeviceError(bvh.device) != RTC_ERROR_NONE) {
+      throw_internal("Embree's BVH builder failed (rtcBuildBVH)");
+    }
+    bvh.root = flatten_build_tree(bvh, root, 0, order, max_depth);
+  } catch (...) {
+    rtcReleaseBVH(builder);
+    throw;
+  }
+  rtcReleaseBVH(builder);
+  if (order.size() != static_cast<std::size_t>(nf)) {
+    throw_internal("MeshQuery: Embree's builder lost or duplicated triangles (" + std::to_string(order.size()) +
+                   " of " + std::to_string(nf) + ")");
+  }
+  return order;
+}
+
+// Boxes of the compact tree and the leaves' slab-cylinder bounds from the current slots (after
+// fill_slots): every leaf box is its double box padded by `pad` and rounded outward to float (so it
+// contains the exact triangles); a node's child box is the union of that child's boxes.
+void refit_compact_tree(MeshQuery::Bvh& bvh) {
+  const unsigned num_clusters = bvh.num_clusters();
+  bvh.leaf_bound.assign(MeshQuery::Bvh::kLeafBoundSize * num_clusters, 0.0);
+  std::vector<float> leaf_box(6 * static_cast<std::size_t>(num_clusters));
+  for (unsigned c = 0; c < num_clusters; ++c) {
+    double lo[3], hi[3];
+    for (int k = 0; k < 3; ++k) {
+      lo[k] = std::numeric_limits<double>::infinity();
+      hi[k] = -std::numeric_limits<double>::infinity();
+    }
+    Vec3 normal = Vec3::Zero();
+    for (unsigned t = bvh.slot_begin(c); t < bvh.slot_end(c); ++t) {
+      const double* x = bvh.corners.data() + 9 * static_cast<std::size_t>(t);
+      for (int k = 0; k < 3; ++k) {
+        lo[k] = std::min({lo[k], x[k], x[3 + k], x[6 + k]});
+        hi[k] = std::max({hi[k], x[k], x[3 + k], x[6 + k]});
+      }
+      normal += (bvh.corner(t, 1) - bvh.corner(t, 0)).cross(bvh.corner(t, 2) - bvh.corner(t, 0));
+    }
+    float* box = leaf_box.data() + 6 * static_cast<std::size_t>(c);
+    for (int k = 0; k < 3; ++k) {
+      box[k] = round_down(lo[k] - bvh.pad);
+      box[3 + k] = round_up(hi[k] + bvh.pad);
+    }
+    // Slab-cylinder about the anchor: the area-weighted normal (zero if the patch's normals cancel,
+    // which leaves a ball), the heights' range and the largest in-plane offset of the corners.
+    const Vec3 centre(bvh.anchors[3 * c], bvh.anchors[3 * c + 1], bvh.anchors[3 * c + 2]);
+    const double n_len = normal.norm();
+    const Vec3 n = n_len > 0.0 && std::isfinite(n_len) ? Vec3(normal / n_len) : Vec3::Zero();
+    double h_lo = std::numeric_limits<double>::infinity(), h_hi = -h_lo, radius2 = 0.0;
+    for (unsigned t = bvh.slot_begin(c); t < bvh.slot_end(c); ++t) {
+      for (int v = 0; v < 3; ++v) {
+        const Vec3 d = bvh.corner(t, v) - centre;
+        const double h = n.dot(d);
+        h_lo = std::min(h_lo, h);
+        h_hi = std::max(h_hi, h);
+        radius2 = std::max(radius2, (d - h * n).squaredNorm());
+      }
+    }
+    double* b = bvh.leaf_bound.data() + MeshQuery::Bvh::kLeafBoundSize * c;
+    for (int k = 0; k < 3; ++k) {
+      b[k] = centre[k];
+      b[3 + k] = n[k];
+    }
+    // Rounding of these few operations is ~1e-16 of the patch size; the query's margin (1e-10 of
+    // the scale) covers it many times over.
+    b[6] = std::sqrt(radius2);
+    b[7] = h_lo;
+    b[8] = h_hi;
+  }
+  // Leaf children's slab-cylinders in float, relative to the mean of their centres.
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  bvh.node_extent = 0.0;
+  for (MeshQuery::Bvh::Node4& node : bvh.nodes) {
+    Vec3 anchor = Vec3::Zero();
+    int leaves = 0;
+    for (unsigned k = 0; k < 4; ++k) {
+      if ((node.leaves & (1u << k)) == 0) continue;
+      const double* b = bvh.leaf_bound.data() + MeshQuery::Bvh::kLeafBoundSize * static_cast<unsigned>(~node.child[k]);
+      anchor += Vec3(b[0], b[1], b[2]);
+      ++leaves;
+    }
+    if (leaves > 0) anchor /= static_cast<double>(leaves);
+    for (int j = 0; j < 3; ++j) node.anchor[j] = anchor[j];
+    for (unsigned k = 0; k < 4; ++k) {
+      if ((node.leaves & (1u << k)) == 0) {
+        node.cx[k] = node.cy[k] = node.cz[k] = node.nx[k] = node.ny[k] = node.nz[k] = 0.0f;
+        node.r[k] = kInf;
+        node.h_lo[k] = -kInf;
+        node.h_hi[k] = kInf;
+        continue;
+      }
+      const double* b = bvh.leaf_bound.data() + MeshQuery::Bvh::kLeafBoundSize * static_cast<unsigned>(~node.child[k]);
+      const Vec3 rel = Vec3(b[0], b[1], b[2]) - anchor;
+      node.cx[k] = static_cast<float>(rel.x());
+      node.cy[k] = static_cast<float>(rel.y());
+      node.cz[k] = static_cast<float>(rel.z());
+      node.nx[k] = static_cast<float>(b[3]);
+      node.ny[k] = static_cast<float>(b[4]);
+      node.nz[k] = static_cast<float>(b[5]);
+      node.r[k] = round_up(b[6]);
+      node.h_lo[k] = round_down(b[7]);
+      node.h_hi[k] = round_up(b[8]);
+      bvh.node_extent = std::max(bvh.node_extent, rel.norm() + b[6] + std::max(std::abs(b[7]), std::abs(b[8])));
+    }
+  }
+  // Reverse preorder: a node's children are refitted before it.
+  for (std::size_t i = bvh.nodes.size(); i-- > 0;) {
+    MeshQuery::Bvh::Node4& node = bvh.nodes[i];
+    for (unsigned k = 0; k < 4; ++k) {
+      if ((node.valid & (1u << k)) == 0) continue;
+      float box[6];
+      const std::int32_t child = node.child[k];
+      if (child < 0) {
+        std::copy_n(leaf_box.data() + 6 * static_cast<std::size_t>(~child), 6, box);
+      } else {
+        const MeshQuery::Bvh::Node4& sub = bvh.nodes[static_cast<std::size_t>(child)];
+        for (int j = 0; j < 3; ++j) box[j] = std::numeric_limits<float>::infinity();
+        for (int j = 3; j < 6; ++j) box[j] = -std::numeric_limits<float>::infinity();
+        for (unsigned m = 0; m < 4; ++m) {
+          if ((sub.valid & (1u << m)) == 0) continue;
+          box[0] = std::min(box[0], sub.lo_x[m]);
+          box[1] = std::min(box[1], sub.lo_y[m]);
+          box[2] = std::min(box[2], sub.lo_z[m]);
+          box[3] = std::max(box[3], sub.hi_x[m]);
+          box[4] = std::max(box[4], sub.hi_y[m]);
+          box[5] = std::max(box[5], sub.hi_z[m]);
+        }
+      }
+      node.lo_x[k] = box[0];
+      node.lo_y[k] = box[1];
+      node.lo_z[k] = box[2];
+      node.hi_x[k] = box[3];
+      node.hi_y[k] = box[4];
+      node.hi_z[k] = box[5];
+    }
   }
 }
 
@@ -792,7 +1250,10 @@ void update_welded_positions(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
 // MeshQuery
 // ---------------------------------------------------------------------------------------------
 
-MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<Bvh>()) {
+MeshQuery::MeshQuery(const TriMesh& mesh) : MeshQuery(mesh, MeshQueryOptions{}) {}
+
+MeshQuery::MeshQuery(const TriMesh& mesh, const MeshQueryOptions& options)
+    : mesh_(mesh), bvh_(std::make_unique<Bvh>()) {
   const Eigen::Index nv = mesh_.V.rows(), nf = mesh_.F.rows();
   if (nf == 0 || nv == 0) {
     throw_bad_input("mesh query needs a mesh with at least one triangle",
@@ -811,7 +1272,18 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
   for (Eigen::Index f = 0; f < nf; ++f) {
     centroids.row(f) = (mesh_.V.row(mesh_.F(f, 0)) + mesh_.V.row(mesh_.F(f, 1)) + mesh_.V.row(mesh_.F(f, 2))) / 3.0;
   }
-  const std::vector<Eigen::Index> order = spatial_order(centroids);
+  bvh.device = rtcNewDevice(nullptr);
+  if (bvh.device == nullptr) throw_internal("Embree: cannot create a device");
+  bvh.compact = options.closest_point_tree == MeshQueryOptions::ClosestPointTree::compact;
+  std::vector<Eigen::Index> order;
+  if (bvh.compact) {
+    order = build_compact_tree(bvh, mesh_);  // slots = the SAH leaves in depth-first order
+  } else {
+    order = spatial_order(centroids);
+    bvh.cluster_begin.clear();
+    for (unsigned first = 0; first < static_cast<unsigned>(nf); first += Bvh::kCluster) bvh.cluster_begin.push_back(first);
+    bvh.cluster_begin.push_back(static_cast<unsigned>(nf));
+  }
   bvh.num_slots = static_cast<unsigned>(nf);
   bvh.triangle_of.resize(static_cast<std::size_t>(nf));
   bvh.slot_of.resize(static_cast<std::size_t>(nf));
@@ -919,9 +1391,7 @@ MeshQuery::MeshQuery(const TriMesh& mesh) : mesh_(mesh), bvh_(std::make_unique<B
   }
   update_welded_positions(bvh, mesh_);
   build_start_grid(bvh);
-
-  bvh.device = rtcNewDevice(nullptr);
-  if (bvh.device == nullptr) throw_internal("Embree: cannot create a device");
+  if (bvh.compact) refit_compact_tree(bvh);
   build_scene(bvh, false);
 }
 
@@ -943,6 +1413,7 @@ void MeshQuery::update_vertices(const Points3& V) {
   fill_slots(bvh, mesh_);
   update_welded_positions(bvh, mesh_);
   build_start_grid(bvh);
+  if (bvh.compact) refit_compact_tree(bvh);
   if (!bvh.refittable) {
     build_scene(bvh, true);  // first update: one build of the refittable tree
     return;
@@ -988,9 +1459,13 @@ ClosestPoint MeshQuery::closest_with_hint(const Vec3& p, int hint_triangle,
   query.z = static_cast<float>(p.z());
   query.time = 0.0f;
   query.radius = padded_radius(q.best_limit, q.radius_pad);
-  RTCPointQueryContext context;
-  rtcInitPointQueryContext(&context);
-  rtcPointQuery(bvh_->scene, &query, &context, point_query_callback, &q);
+  if (bvh_->compact) {
+    closest_compact(&q);
+  } else {
+    RTCPointQueryContext context;
+    rtcInitPointQueryContext(&context);
+    rtcPointQuery(bvh_->scene, &query, &context, point_query_callback, &q);
+  }
 
   ClosestPoint out;
   if (q.best_slot < 0) return out;

@@ -65,6 +65,19 @@ std::optional<RayHit> intersect_ray_triangle(const Vec3& origin, const Vec3& dir
                                              double t_max = std::numeric_limits<double>::infinity(),
                                              bool* on_edge = nullptr);
 
+// How a MeshQuery is built. Every choice gives identical results (the exhaustive answer); they
+// differ only in speed (docs/geometry-queries.md).
+struct MeshQueryOptions {
+  // The tree that answers closest-point queries.
+  //   embree_clusters: Embree's own point query over an Embree scene whose primitives are runs of
+  //     16 Morton-ordered triangles (callbacks per cluster).
+  //   compact: leaves of <= 16 triangles made by Embree's SAH builder (rtcBuildBVH) stored in a
+  //     compact 4-wide float tree traversed nearest child first, without callbacks.
+  // Rays and inside tests always use an Embree scene over the same clusters.
+  enum class ClosestPointTree { embree_clusters, compact };
+  ClosestPointTree closest_point_tree = ClosestPointTree::embree_clusters;
+};
+
 // Spatial query object over one triangle mesh. Build once (O(F log F)); queries are const,
 // allocation-free for single points, and safe to call from many threads at once.
 class MeshQuery {
@@ -72,6 +85,7 @@ class MeshQuery {
   // Copies the mesh (kept in double for all exact computations) and builds the BVH. Throws
   // fascicle::Error (bad input) on an empty mesh, non-finite coordinates or out-of-range indices.
   explicit MeshQuery(const TriMesh& mesh);
+  MeshQuery(const TriMesh& mesh, const MeshQueryOptions& options);
   ~MeshQuery();
   MeshQuery(MeshQuery&&) noexcept;
   MeshQuery& operator=(MeshQuery&&) noexcept;
