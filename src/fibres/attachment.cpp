@@ -1,6 +1,8 @@
 // Attachment areas from vertex sets, end regions, landmarks and bones.
 #include "fascicle/fibres/attachment.hpp"
 
+#include "sampling.hpp"
+
 #include "fascicle/core/error.hpp"
 #include "fascicle/fibres/fibre_set.hpp"
 #include "fascicle/geometry/mesh_query.hpp"
@@ -182,6 +184,53 @@ Attachments find_landmark_attachments(const TriMesh& muscle, const Points3& orig
   return a;
 }
 
+namespace {
+
+// Bone contacts: drops the connected pieces (triangles sharing vertices) of a contact set whose
+// area is under `min_fraction` of the set's area, and vertices in no triangle. A muscle passing
+// within the attachment distance of a bone far from its attachment leaves such specks (the VH
+// soleus: one 1 mm^2 triangle 60 mm from the tibial/fibular contact strip); kept, they would be
+// Dirichlet sinks inside the belly for the harmonic field.
+std::vector<int> drop_contact_specks(const TriMesh& muscle, std::vector<int> vertices,
+                                     double min_fraction) {
+  if (vertices.empty()) return vertices;
+  std::vector<char> in(muscle.num_vertices(), 0);
+  for (int v : vertices) in[v] = 1;
+  std::vector<int> parent(muscle.num_vertices());
+  for (std::size_t v = 0; v < parent.size(); ++v) parent[v] = static_cast<int>(v);
+  const auto root = [&](int v) {
+    while (parent[v] != v) v = parent[v] = parent[parent[v]];
+    return v;
+  };
+  std::vector<int> faces;
+  for (Eigen::Index f = 0; f < muscle.num_faces(); ++f) {
+    const auto t = muscle.F.row(f);
+    if (!in[t(0)] || !in[t(1)] || !in[t(2)]) continue;
+    faces.push_back(static_cast<int>(f));
+    parent[root(t(1))] = root(t(0));
+    parent[root(t(2))] = root(t(0));
+  }
+  std::vector<double> piece_area(muscle.num_vertices(), 0.0);
+  double total = 0.0;
+  for (int f : faces) {
+    const Vec3 a = muscle.V.row(muscle.F(f, 0)), b = muscle.V.row(muscle.F(f, 1)),
+               c = muscle.V.row(muscle.F(f, 2));
+    const double A = 0.5 * (b - a).cross(c - a).norm();
+    piece_area[root(muscle.F(f, 0))] += A;
+    total += A;
+  }
+  if (!(total > 0.0)) return vertices;
+  std::vector<char> in_triangle(muscle.num_vertices(), 0);
+  for (int f : faces)
+    for (int k = 0; k < 3; ++k) in_triangle[muscle.F(f, k)] = 1;
+  std::vector<int> kept;
+  for (int v : vertices)
+    if (in_triangle[v] && piece_area[root(v)] >= min_fraction * total) kept.push_back(v);
+  return kept;
+}
+
+}  // namespace
+
 Attachments find_bone_attachments(const TriMesh& muscle, const std::vector<TriMesh>& bones,
                                   double distance, bool split_by_bone, double end_fraction,
                                   const Vec3& origin_towards) {
@@ -210,6 +259,8 @@ Attachments find_bone_attachments(const TriMesh& muscle, const std::vector<TriMe
       if (bone_of[v] == 0) o.push_back(static_cast<int>(v));
       if (bone_of[v] > 0) i.push_back(static_cast<int>(v));
     }
+    o = drop_contact_specks(muscle, std::move(o), 0.02);
+    i = drop_contact_specks(muscle, std::move(i), 0.02);
     if (o.empty() || i.empty())
       throw_bad_input(std::string("no part of the muscle lies within the attachment distance of ") +
                           (o.empty() ? "the origin bone (the first)" : "any insertion bone"),
@@ -221,6 +272,8 @@ Attachments find_bone_attachments(const TriMesh& muscle, const std::vector<TriMe
       if (bone_of[v] < 0) continue;
       (t(v) < 0.5 ? o : i).push_back(static_cast<int>(v));
     }
+    o = drop_contact_specks(muscle, std::move(o), 0.02);
+    i = drop_contact_specks(muscle, std::move(i), 0.02);
     // A side without bone contact (a belly without tendon) takes its end region.
     const auto fill_end = [&](std::vector<int>& side, bool origin_side) {
       if (!side.empty()) return;
@@ -281,29 +334,18 @@ namespace fascicle {
 Points3 calc_area_samples(const TriMesh& muscle, const AttachmentArea& area, int count) {
   if (area.triangles.empty())
     throw_bad_input("the " + area.name + " area has no triangle", {.object = area.name});
-  std::vector<double> cumulative;
-  double total = 0.0;
+  std::vector<detail::WeightedTriangle> tris;
+  tris.reserve(area.triangles.size());
   for (int f : area.triangles) {
-    const Vec3 a = muscle.V.row(muscle.F(f, 0)), b = muscle.V.row(muscle.F(f, 1)),
-               c = muscle.V.row(muscle.F(f, 2));
-    total += 0.5 * (b - a).cross(c - a).norm();
-    cumulative.push_back(total);
+    detail::WeightedTriangle t;
+    for (int k = 0; k < 3; ++k) t.corner[k] = muscle.V.row(muscle.F(f, k));
+    t.weight = 0.5 * (t.corner[1] - t.corner[0]).cross(t.corner[2] - t.corner[0]).norm();
+    t.tag = f;
+    tris.push_back(t);
   }
-  Points3 P(std::max(count, 0), 3);
-  for (int i = 0; i < count; ++i) {
-    const Vec2 r = get_r2_point(i);
-    const double target = r.x() * total;
-    const std::size_t k = std::min<std::size_t>(
-        std::lower_bound(cumulative.begin(), cumulative.end(), target) - cumulative.begin(),
-        cumulative.size() - 1);
-    const double lo = k == 0 ? 0.0 : cumulative[k - 1];
-    const double s = std::clamp((target - lo) / std::max(cumulative[k] - lo, 1e-300), 0.0, 1.0);
-    const int f = area.triangles[k];
-    const Vec3 a = muscle.V.row(muscle.F(f, 0)), b = muscle.V.row(muscle.F(f, 1)),
-               c = muscle.V.row(muscle.F(f, 2));
-    const double q = std::sqrt(s);
-    P.row(i) = ((1.0 - q) * a + q * (1.0 - r.y()) * b + q * r.y() * c).transpose();
-  }
+  const std::vector<detail::TriangleSample> samples = detail::sample_triangles(tris, count);
+  Points3 P(samples.size(), 3);
+  for (std::size_t i = 0; i < samples.size(); ++i) P.row(i) = samples[i].point.transpose();
   return P;
 }
 

@@ -38,8 +38,15 @@ Decomposition decompose_muscle(const TriMesh& muscle, const Attachments& areas,
                                       : mapper.get_mean_thickness(),
                                   mapper.get_axial_length())
               : default_pennate_rise;
+      // Parallel fibres start in proportion to the cross-section they map to (the other
+      // templates' start parameters have other meanings: the R2 sequence in the unit square).
       const FibreSet unit =
-          make_template_fibres(options.fibre_template, options.count, options.resolution, rise);
+          options.fibre_template == FibreTemplate::parallel && options.count >= 1
+              ? make_template_fibres(options.fibre_template,
+                                     mapper.calc_section_samples(options.count),
+                                     options.resolution, rise)
+              : make_template_fibres(options.fibre_template, options.count, options.resolution,
+                                     rise);
       d.fibres = mapper.calc_fibres(unit, is_end_to_end(options.fibre_template));
       d.method_used = FibreMethod::template_map;
       return d;
@@ -60,7 +67,11 @@ Decomposition decompose_muscle(const TriMesh& muscle, const Attachments& areas,
                                     .stop_potential = areas.insertion_interior.rows() > 0
                                                           ? 0.99
                                                           : 1.0 - 1e-9,
-                                    .end_on_boundary = options.harmonic.pennation_rad > 0.0});
+                                    .end_on_boundary = options.harmonic.pennation_rad > 0.0,
+                                    .seeding = options.harmonic.pennation_rad > 0.0
+                                                   ? TraceOptions::Seeding::origin_area
+                                                   : options.harmonic_seeding,
+                                    .seed_by_flux = options.harmonic_seed_by_flux});
   d.method_used = FibreMethod::harmonic;
   return d;
 }

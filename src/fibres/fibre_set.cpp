@@ -57,8 +57,18 @@ double calc_pennate_rise(double pennation_rad, double thickness_m, double axial_
 }
 
 FibreSet make_template_fibres(FibreTemplate t, int count, int resolution, double rise) {
+  if (count < 1) throw_usage("fibre count must be at least 1", {.suggestion = "use --count 100"});
+  std::vector<Vec2> starts;
+  starts.reserve(count);
+  for (int i = 0; i < count; ++i) starts.push_back(get_r2_point(i));
+  return make_template_fibres(t, starts, resolution, rise);
+}
+
+FibreSet make_template_fibres(FibreTemplate t, const std::vector<Vec2>& starts, int resolution,
+                              double rise) {
   if (!(rise > 0.0 && rise <= 1.0))
     throw_usage("the pennate rise must be in (0, 1]", {.suggestion = "use a rise such as 0.35"});
+  const int count = static_cast<int>(starts.size());
   if (count < 1) throw_usage("fibre count must be at least 1", {.suggestion = "use --count 100"});
   if (resolution < 2)
     throw_usage("fibre resolution must be at least 2 points", {.suggestion = "use --resolution 15"});
@@ -69,7 +79,7 @@ FibreSet make_template_fibres(FibreTemplate t, int count, int resolution, double
   FibreSet set;
   set.fibres.reserve(count);
   for (int i = 0; i < count; ++i) {
-    const Vec2 r = get_r2_point(i);
+    const Vec2 r = starts[i].cwiseMax(0.0).cwiseMin(1.0);
     Points3 P(resolution, 3);
     for (int k = 0; k < resolution; ++k) {
       const double s = static_cast<double>(k) / (resolution - 1);

@@ -4,6 +4,7 @@
 #include "fascicle/core/error.hpp"
 #include "fascicle/geometry/mesh_query.hpp"
 #include "fascicle/geometry/slicing.hpp"
+#include "sampling.hpp"
 
 #include <Eigen/Eigenvalues>
 
@@ -81,6 +82,9 @@ struct TemplateMapper::Slices {
   Poly2 square;                 // #samples x 2 unit-square boundary
   std::vector<Points3> contour;  // per slice: #samples x 3 points matching `square`
   std::vector<Poly2> contour_xy;  // the same in box (x, y) coordinates
+  // Cells of the template's start square (corners (r.x, r.y, 0)), weighted by the mean mapped
+  // cross-section area (calc_section_samples).
+  std::vector<detail::WeightedTriangle> section_cells;
 };
 
 TemplateMapper::~TemplateMapper() = default;
@@ -233,7 +237,46 @@ TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
     slices_->contour.push_back(std::move(out));
     slices_->contour_xy.push_back(std::move(out_xy));
   }
+  {
+    // Mean mapped area of the start square's cells (two triangles per cell), over the slices.
+    constexpr int G = 16;
+    constexpr double inset = 0.02;  // as make_template_fibres
+    std::vector<Points3> node(K, Points3((G + 1) * (G + 1), 3));
+    for (int i = 0; i <= G; ++i)
+      for (int j = 0; j <= G; ++j) {
+        const Vec2 uv(inset + (1.0 - 2.0 * inset) * i / G, inset + (1.0 - 2.0 * inset) * j / G);
+        const VecX lambda = calc_mean_value_coordinates(slices_->square, uv);
+        for (int k = 0; k < K; ++k)
+          node[k].row(i * (G + 1) + j) = (slices_->contour[k].transpose() * lambda).transpose();
+      }
+    const auto id = [](int i, int j) { return i * (G + 1) + j; };
+    for (int i = 0; i < G; ++i)
+      for (int j = 0; j < G; ++j)
+        for (int half = 0; half < 2; ++half) {
+          const std::array<int, 3> n = half == 0
+                                           ? std::array<int, 3>{id(i, j), id(i + 1, j), id(i + 1, j + 1)}
+                                           : std::array<int, 3>{id(i, j), id(i + 1, j + 1), id(i, j + 1)};
+          detail::WeightedTriangle cell;
+          for (int c = 0; c < 3; ++c)
+            cell.corner[c] = Vec3(static_cast<double>(n[c] / (G + 1)) / G,
+                                  static_cast<double>(n[c] % (G + 1)) / G, 0.0);
+          for (int k = 0; k < K; ++k) {
+            const Vec3 a = node[k].row(n[0]), b = node[k].row(n[1]), c = node[k].row(n[2]);
+            cell.weight += 0.5 * (b - a).cross(c - a).norm() / K;
+          }
+          slices_->section_cells.push_back(cell);
+        }
+  }
   query_ = std::make_unique<MeshQuery>(muscle);
+}
+
+std::vector<Vec2> TemplateMapper::calc_section_samples(int count) const {
+  const std::vector<detail::TriangleSample> samples =
+      detail::sample_triangles(slices_->section_cells, count);
+  std::vector<Vec2> out;
+  out.reserve(samples.size());
+  for (const detail::TriangleSample& s : samples) out.emplace_back(s.point.x(), s.point.y());
+  return out;
 }
 
 namespace {

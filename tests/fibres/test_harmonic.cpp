@@ -1,10 +1,12 @@
 // Tetrahedralisation, Laplace solve and streamline tracing on analytic shapes.
 #include "fascicle/core/error.hpp"
+#include "fascicle/fibres/attachment.hpp"
 #include "fascicle/fibres/harmonic.hpp"
 #include "fascicle/geometry/primitives.hpp"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 
@@ -115,4 +117,83 @@ TEST(HarmonicFibres, CylinderStreamlinesAreStraightAndFullLength) {
       EXPECT_LE(std::hypot(P(k, 0), P(k, 1)), r + 1e-12);
     }
   }
+}
+
+// Seeds inside the volume (level set u = 1/2, or the tets by volume), traced both ways: on the
+// cylinder every fibre still runs straight from cap to cap, and the fibres fill the cross-section
+// evenly (area-proportional seeds: mean squared radius r^2 / 2 of a uniform disk).
+TEST(HarmonicFibres, InteriorSeedsTraceBothWaysToTheCaps) {
+  const double h = 0.1, r = 0.015;
+  const CylinderCase c = make_cylinder_case(r, h);
+  const HarmonicField f = calc_harmonic_field(c.mesh, c.areas);
+  for (const TraceOptions::Seeding seeding :
+       {TraceOptions::Seeding::level_set, TraceOptions::Seeding::volume}) {
+    const FibreSet s = trace_harmonic_fibres(
+        f, c.areas.origin, {.count = 200, .resolution = 11, .seeding = seeding});
+    ASSERT_EQ(s.size(), 200u);
+    double mean_r2 = 0.0;
+    for (const Points3& P : s.fibres) {
+      EXPECT_NEAR(P(0, 2), h / 2, 1e-6);    // origin end first
+      EXPECT_NEAR(P(10, 2), -h / 2, 1e-6);  // on the insertion cap
+      EXPECT_NEAR(calc_polyline_length(P), h, 1e-5);
+      EXPECT_NEAR(P(10, 0), P(0, 0), 1e-6);
+      EXPECT_NEAR(P(10, 1), P(0, 1), 1e-6);
+      mean_r2 += (P(0, 0) * P(0, 0) + P(0, 1) * P(0, 1)) / s.size();
+    }
+    // The polygonal disk (32 sides) has a slightly smaller second moment than the circle.
+    EXPECT_NEAR(mean_r2 / (0.5 * r * r), 1.0, 0.06) << static_cast<int>(seeding);
+  }
+}
+
+TEST(AttachmentSamples, StratifiedAlongALongStrip) {
+  // A 100 x 4 mm strip of 1 mm squares whose triangles are stored in a scrambled order: the
+  // samples still fall evenly along it (each 10 mm tenth gets 10 +- 2 of 100), so the ends of
+  // re-routed fibres cannot leave part of a long attachment area empty.
+  const int nx = 100, ny = 4;
+  TriMesh strip;
+  strip.V.resize((nx + 1) * (ny + 1), 3);
+  for (int i = 0; i <= nx; ++i)
+    for (int j = 0; j <= ny; ++j) strip.V.row(i * (ny + 1) + j) << 1e-3 * i, 1e-3 * j, 0.0;
+  const int nt = 2 * nx * ny;
+  strip.F.resize(nt, 3);
+  for (int t = 0; t < nt; ++t) {
+    const int k = (t * 397) % nt;  // scrambled storage order (397 is prime to 800)
+    const int q = k / 2, i = q / ny, j = q % ny;
+    const int a = i * (ny + 1) + j, b = a + ny + 1;
+    if (k % 2 == 0) strip.F.row(t) << a, b, b + 1;
+    else strip.F.row(t) << a, b + 1, a + 1;
+  }
+  std::vector<int> all(strip.num_vertices());
+  for (int v = 0; v < strip.num_vertices(); ++v) all[v] = v;
+  const AttachmentArea area = make_attachment_area(strip, all, "origin");
+  ASSERT_NEAR(area.area_m2, 4e-4, 1e-12);
+  const Points3 P = calc_area_samples(strip, area, 100);
+  ASSERT_EQ(P.rows(), 100);
+  std::vector<int> per_tenth(10, 0);
+  for (Eigen::Index k = 0; k < P.rows(); ++k) {
+    EXPECT_GE(P(k, 1), -1e-12);
+    EXPECT_LE(P(k, 1), 4e-3 + 1e-12);
+    ++per_tenth[std::clamp(static_cast<int>(P(k, 0) / 1e-2), 0, 9)];
+  }
+  for (int b = 0; b < 10; ++b) EXPECT_NEAR(per_tenth[b], 10, 2) << "tenth " << b;
+}
+
+TEST(BoneAttachments, DropsContactSpecks) {
+  // A cylinder (z up, origin towards +z) touching a box along its upper side, and a small sphere
+  // 1 mm from one side vertex on the other side of the upper half: that one-vertex contact
+  // (no triangle) is not part of the origin area.
+  const double r = 0.015, h = 0.1;
+  const TriMesh muscle = make_cylinder(r, h, 32, 12);
+  TriMesh box = make_box(Vec3(0.005, 0.02, 0.02));
+  box.V.rowwise() += Eigen::RowVector3d(r + 0.005 + 0.001, 0.0, 0.025);
+  int speck = -1;
+  for (Eigen::Index v = 0; v < muscle.num_vertices(); ++v)
+    if (muscle.V(v, 0) < -r + 1e-9 && muscle.V(v, 2) > 0.01 && muscle.V(v, 2) < 0.03) speck = v;
+  ASSERT_GE(speck, 0);
+  TriMesh ball = make_icosphere(0.0005, 2);
+  ball.V.rowwise() += muscle.V.row(speck) + Eigen::RowVector3d(-0.0015, 0.0, 0.0);
+  const Attachments a = find_bone_attachments(muscle, {box, ball}, 0.002);
+  EXPECT_FALSE(std::binary_search(a.origin.vertices.begin(), a.origin.vertices.end(), speck));
+  ASSERT_FALSE(a.origin.triangles.empty());
+  for (int v : a.origin.vertices) EXPECT_GT(muscle.V(v, 0), 0.0);  // only the box side
 }

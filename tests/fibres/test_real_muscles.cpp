@@ -91,21 +91,22 @@ double find_floor(const std::string& name, FibreMethod method, const std::string
     double floor;
   };
   const FibreMethod T = FibreMethod::template_map, H = FibreMethod::harmonic;
+  // Floors a little under the values measured on 2026-11-24 after volume seeding of the harmonic
+  // streamlines, stratified area sampling and contact-speck removal (docs/fibres.md, "Quality
+  // invariants"); 15 of the 27 earlier entries now meet the targets.
   static const Shortfall known[] = {
-      {"soleus", T, "origin_spread", 0.20},       {"soleus", T, "coverage", 0.70},
-      {"tibialis_anterior", T, "origin_spread", 0.65}, {"tibialis_anterior", T, "insertion_spread", 0.75},
-      {"tibialis_anterior", T, "coverage", 0.70}, {"tibialis_anterior", T, "smooth", 0.50},
-      {"medial_gastrocnemius", T, "coverage", 0.85}, {"gluteus_medius", T, "coverage", 0.85},
-      {"bolsterlee_MG", T, "insertion_spread", 0.70}, {"bolsterlee_TA", T, "coverage", 0.85},
-      {"soleus", H, "origin_spread", 0.20},       {"soleus", H, "insertion_spread", 0.50},
-      {"soleus", H, "coverage", 0.55},            {"tibialis_anterior", H, "origin_spread", 0.65},
-      {"tibialis_anterior", H, "insertion_spread", 0.15}, {"tibialis_anterior", H, "coverage", 0.60},
-      {"medial_gastrocnemius", H, "insertion_spread", 0.65},
-      {"medial_gastrocnemius", H, "coverage", 0.60}, {"vastus_lateralis", H, "ends", 0.55},
-      {"vastus_lateralis", H, "insertion_spread", 0.70}, {"vastus_lateralis", H, "coverage", 0.85},
-      {"gluteus_medius", H, "insertion_spread", 0.55}, {"gluteus_medius", H, "coverage", 0.80},
-      {"bolsterlee_MG", H, "ends", 0.60},         {"bolsterlee_MG", H, "coverage", 0.80},
-      {"bolsterlee_TA", H, "insertion_spread", 0.50}, {"bolsterlee_TA", H, "coverage", 0.70},
+      {"soleus", T, "coverage", 0.78},
+      {"tibialis_anterior", T, "origin_spread", 0.72},
+      {"tibialis_anterior", T, "coverage", 0.73},
+      {"tibialis_anterior", T, "smooth", 0.50},
+      {"medial_gastrocnemius", T, "coverage", 0.91},
+      {"gluteus_medius", T, "coverage", 0.91},
+      {"bolsterlee_TA", T, "coverage", 0.92},
+      {"soleus", H, "origin_spread", 0.76},
+      {"tibialis_anterior", H, "origin_spread", 0.74},
+      {"tibialis_anterior", H, "insertion_spread", 0.48},
+      {"tibialis_anterior", H, "coverage", 0.85},
+      {"bolsterlee_TA", H, "insertion_spread", 0.76},
   };
   for (const Shortfall& k : known)
     if (name == k.name && method == k.method && metric == k.metric) return k.floor;
@@ -168,10 +169,10 @@ TEST_P(RealMuscle, FibresSatisfyQualityInvariants) {
   std::sort(lengths.begin(), lengths.end());
   const double median = lengths[lengths.size() / 2];
   std::printf("%-22s %-8s %7.0f ms  fibres %3zu  ends-on-areas %5.1f%%  outside %.3f mm  "
-              "max turn %5.1f deg  median length %6.1f mm (Ward %5.1f mm)\n",
+              "max turn %5.1f deg  smooth %5.1f%%  median length %6.1f mm (Ward %5.1f mm)\n",
               c.name.c_str(), to_string(d.method_used).c_str(), t_ms, d.fibres.size(),
               100.0 * ends_ok / d.fibres.size(), worst_outside * 1e3, worst_turn * 180 / M_PI,
-              median * 1e3, c.ward_fibre_length_m * 1e3);
+              100.0 * smooth_fibres / d.fibres.size(), median * 1e3, c.ward_fibre_length_m * 1e3);
   const double n_fibres = static_cast<double>(d.fibres.size());
   EXPECT_GE(ends_ok / n_fibres, find_floor(c.name, method, "ends", 0.9)) << c.name;
   EXPECT_GE(smooth_fibres / n_fibres, find_floor(c.name, method, "smooth", 0.9)) << c.name;
@@ -184,7 +185,7 @@ TEST_P(RealMuscle, FibresSatisfyQualityInvariants) {
       for (int k = 0; k < 3; ++k) area_pts.emplace_back(muscle.V.row(muscle.F(f, k)));
     const double ratio = calc_projected_hull_area(ends, a.normal) /
                          calc_projected_hull_area(area_pts, a.normal);
-    std::printf("    %s spread %.2f\n", a.name.c_str(), ratio);
+    std::printf("    %s spread %.3f\n", a.name.c_str(), ratio);
     EXPECT_GE(ratio, find_floor(c.name, method, a.name + "_spread", 0.8)) << c.name << " " << a.name;
   }
   // Coverage: 95% of interior points lie within 1.5 sqrt(cross-section area / count) of a fibre.

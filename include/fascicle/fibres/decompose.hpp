@@ -31,6 +31,11 @@ struct DecomposeOptions {
   RiseCrossing rise_crossing = RiseCrossing::mean_thickness;
   TemplateMapOptions mapping;
   HarmonicOptions harmonic;
+  // Where the streamlines of plain harmonic fields (harmonic.pennation_rad == 0) start
+  // (TraceOptions::Seeding; docs/fibres.md compares them). Pennate fields always start on the
+  // origin area.
+  TraceOptions::Seeding harmonic_seeding = TraceOptions::Seeding::volume;
+  bool harmonic_seed_by_flux = false;  // level-set seeds by flux instead of area
 };
 
 struct Decomposition {

@@ -50,6 +50,12 @@ FibreSet make_template_fibres(FibreTemplate t, int count, int resolution);
 // usage error for h outside (0, 1].
 FibreSet make_template_fibres(FibreTemplate t, int count, int resolution, double rise);
 
+// The same with given start parameters r in [0, 1]^2 (one fibre each) in place of the R2
+// sequence: r.x() and r.y() take the places of the sequence's coordinates in the rules above
+// (parallel: x0, y0 = 0.02 + 0.96 r). E.g. TemplateMapper::calc_section_samples.
+FibreSet make_template_fibres(FibreTemplate t, const std::vector<Vec2>& starts, int resolution,
+                              double rise);
+
 // Default rise of the pennate templates (make_template_fibres without `rise`).
 inline constexpr double default_pennate_rise = 0.35;
 

@@ -75,6 +75,16 @@ struct TraceOptions {
   // crossed to the insertion side); false: away from the insertion area it slides along the
   // surface.
   bool end_on_boundary = false;
+  // Where fibres start. origin_area: on the origin area (area-weighted, stratified), traced to the
+  // insertion. level_set: on the level set u = seed_level inside the muscle (stratified by area, or
+  // by flux |grad u| dA with seed_by_flux), each traced backwards to the origin area and forwards
+  // to the insertion area, so the fibres follow the volume rather than the origin area's flux.
+  // level_set needs grad u (plain fields; pennate fields hold directions).
+  // volume: seeds spread over the muscle volume (volume-weighted, stratified), traced both ways.
+  enum class Seeding { origin_area, level_set, volume };
+  Seeding seeding = Seeding::origin_area;
+  double seed_level = 0.5;
+  bool seed_by_flux = false;
 };
 
 // Traces `count` fibres: seeds spread over the origin area's triangles (area-weighted R2

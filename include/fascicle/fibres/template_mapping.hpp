@@ -64,6 +64,15 @@ class TemplateMapper {
   const std::vector<SliceIssue>& get_issues() const { return issues_; }
   bool is_mappable() const { return issues_.empty(); }
 
+  // `count` start parameters r in [0, 1]^2 for the parallel template (make_template_fibres with
+  // starts; the fibre sits at 0.02 + 0.96 r in the unit square), spread in proportion to the
+  // muscle cross-section they map to: the square is split into 16 x 16 cells (two triangles
+  // each), each weighted by the mean over the slices of the area its mean value coordinate image
+  // covers, and sampled with the stratified R2 rule of the attachment areas. The R2 sequence
+  // itself is uniform in the square, which the map stretches unevenly (crescent-shaped sections
+  // leave sparse, uncovered horns).
+  std::vector<Vec2> calc_section_samples(int count) const;
+
   // Maps unit-cube fibres into the muscle (metres, mesh frame), re-routing end-to-end templates'
   // ends over the attachment areas when `reroute_ends`, then smoothing and resampling each fibre to
   // its template resolution.
