@@ -11,9 +11,10 @@ StressAndEnergy calc_mooney_rivlin(const MooneyRivlinParameters& p, const Mat3& 
   const Mat3 C = F.transpose() * F;
   const double I1 = C.trace();
   const double I2 = 0.5 * (I1 * I1 - (C * C).trace());
-  const double J23 = std::pow(J, -2.0 / 3.0);
+  const double cbrt_J = std::cbrt(J);  // J^{-2/3} through cbrt: cheaper than pow
+  const double J23 = 1.0 / (cbrt_J * cbrt_J);
   const double J43 = J23 * J23;
-  const double lnJ = std::log(J);
+  const double lnJ = p.bulk_modulus_Pa != 0.0 ? std::log(J) : 0.0;
   StressAndEnergy out;
   out.energy_density_Pa = p.c1_Pa * (J23 * I1 - 3.0) + p.c2_Pa * (J43 * I2 - 3.0) +
                           0.5 * p.bulk_modulus_Pa * lnJ * lnJ;
@@ -68,11 +69,11 @@ double calc_blemker_active(const BlemkerFibreParameters& p, double lambda) {
 double calc_blemker_active_integral(const BlemkerFibreParameters& p, double lambda) {
   const double l = lambda / p.lambda_opt;
   if (l <= 0.4) return 0.0;
-  if (l < 0.6) return 3.0 * std::pow(l - 0.4, 3);
+  if (l < 0.6) return 3.0 * (l - 0.4) * (l - 0.4) * (l - 0.4);
   const double at06 = 0.024;
-  if (l <= 1.4) return at06 + (l - 0.6) - (4.0 / 3.0) * (std::pow(l - 1.0, 3) + 0.064);
+  if (l <= 1.4) return at06 + (l - 0.6) - (4.0 / 3.0) * ((l - 1.0) * (l - 1.0) * (l - 1.0) + 0.064);
   const double at14 = at06 + 0.8 - (4.0 / 3.0) * 0.128;
-  if (l < 1.6) return at14 + 3.0 * (std::pow(l - 1.6, 3) + 0.008);
+  if (l < 1.6) return at14 + 3.0 * ((l - 1.6) * (l - 1.6) * (l - 1.6) + 0.008);
   return at14 + 0.024;
 }
 
@@ -112,9 +113,10 @@ Mat9 calc_mooney_rivlin_tangent(const MooneyRivlinParameters& p, const Mat3& F) 
   const Mat3 FFt = F * F.transpose();
   const double I1 = C.trace();
   const double I2 = 0.5 * (I1 * I1 - (C * C).trace());
-  const double J23 = std::pow(J, -2.0 / 3.0);
+  const double cbrt_J = std::cbrt(J);  // J^{-2/3} through cbrt: cheaper than pow
+  const double J23 = 1.0 / (cbrt_J * cbrt_J);
   const double J43 = J23 * J23;
-  const double lnJ = std::log(J);
+  const double lnJ = p.bulk_modulus_Pa != 0.0 ? std::log(J) : 0.0;
   const Mat3 P1 = 2.0 * F - (2.0 / 3.0) * I1 * FinvT;
   const Mat3 P2 = 2.0 * (I1 * F - FC) - (4.0 / 3.0) * I2 * FinvT;
   const double c1 = p.c1_Pa, c2 = p.c2_Pa, kappa = p.bulk_modulus_Pa;

@@ -5,8 +5,8 @@
 #include "fascicle/core/error.hpp"
 #include "internal.hpp"
 
-#include <Eigen/CholmodSupport>
 #include <Eigen/SparseCholesky>
+#include <cholmod.h>
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
@@ -14,6 +14,151 @@
 #include <cmath>
 
 namespace fascicle {
+
+namespace {
+
+// CHOLMOD's LLᵀ of the free block of the backward-Euler matrix (the rows and columns of attached
+// dofs are identity with zero right-hand sides, so they are left out: fewer unknowns and no
+// fill through them). The block is permuted once, with the fill-reducing ordering CHOLMOD picks
+// for it, into its lower triangle, and CHOLMOD then factorises it in the natural ordering: no
+// permuted transposes per factorisation (with a lower-stored input and its own permutation
+// CHOLMOD transposes twice) and no permutation in the solves. Solves reuse CHOLMOD's dense
+// workspaces (cholmod_solve2), so they allocate nothing after the first.
+class FreeBlockCholesky {
+ public:
+  FreeBlockCholesky() {
+    cholmod_start(&c_);
+    c_.print = 0;
+    c_.error_handler = nullptr;  // not positive definite is an expected outcome
+  }
+  ~FreeBlockCholesky() {
+    if (L_) cholmod_free_factor(&L_, &c_);
+    for (cholmod_dense** d : {&B_, &X1_, &Y1_, &E1_, &X2_, &Y2_, &E2_})
+      if (*d) cholmod_free_dense(d, &c_);
+    cholmod_finish(&c_);
+  }
+  FreeBlockCholesky(const FreeBlockCholesky&) = delete;
+  FreeBlockCholesky& operator=(const FreeBlockCholesky&) = delete;
+
+  bool is_analysed() const { return L_ != nullptr; }
+
+  // A: the full matrix's lower pattern; fixed: per dof. simplicial: CHOLMOD's simplicial LLᵀ.
+  void analyse(const Eigen::SparseMatrix<double>& A, const std::vector<char>& fixed, bool simplicial) {
+    full_ = static_cast<int>(A.rows());
+    std::vector<int> free_index(full_, -1), free_dofs;
+    for (int i = 0; i < full_; ++i)
+      if (!fixed[i]) {
+        free_index[i] = static_cast<int>(free_dofs.size());
+        free_dofs.push_back(i);
+      }
+    nf_ = static_cast<int>(free_dofs.size());
+    // The free block with the positions of its entries in A's values (exact in doubles).
+    auto build = [&](const std::vector<int>& map) {
+      std::vector<Eigen::Triplet<double>> t;
+      for (int col = 0; col < full_; ++col)
+        for (int p = A.outerIndexPtr()[col]; p < A.outerIndexPtr()[col + 1]; ++p) {
+          const int row = A.innerIndexPtr()[p];
+          if (row < col || free_index[row] < 0 || free_index[col] < 0) continue;
+          const int r = map[free_index[row]], c = map[free_index[col]];
+          t.emplace_back(std::max(r, c), std::min(r, c), static_cast<double>(p));
+        }
+      Eigen::SparseMatrix<double> S(nf_, nf_);
+      S.setFromTriplets(t.begin(), t.end());
+      S.makeCompressed();
+      p_.assign(S.outerIndexPtr(), S.outerIndexPtr() + nf_ + 1);
+      i_.assign(S.innerIndexPtr(), S.innerIndexPtr() + S.nonZeros());
+      src_.resize(S.nonZeros());
+      for (Eigen::Index q = 0; q < S.nonZeros(); ++q) src_[q] = static_cast<int>(S.valuePtr()[q]);
+      x_.assign(S.nonZeros(), 0.0);
+    };
+    std::vector<int> identity(nf_);
+    for (int k = 0; k < nf_; ++k) identity[k] = k;
+    build(identity);
+    // CHOLMOD's own choice of ordering (AMD or METIS, postordered) on the free block.
+    cholmod_sparse S0 = get_view();
+    cholmod_factor* L0 = cholmod_analyze(&S0, &c_);
+    if (!L0) throw_internal("CHOLMOD could not analyse the backward-Euler matrix");
+    std::vector<int> perm(static_cast<const int*>(L0->Perm), static_cast<const int*>(L0->Perm) + nf_);
+    cholmod_free_factor(&L0, &c_);
+    std::vector<int> inverse(nf_);
+    for (int k = 0; k < nf_; ++k) inverse[perm[k]] = k;
+    build(inverse);
+    dof_.resize(nf_);
+    for (int k = 0; k < nf_; ++k) dof_[k] = free_dofs[perm[k]];
+    c_.nmethods = 1;
+    c_.method[0].ordering = CHOLMOD_NATURAL;
+    c_.postorder = 0;
+    if (simplicial) {
+      c_.supernodal = CHOLMOD_SIMPLICIAL;
+      c_.final_asis = 0;
+      c_.final_super = 0;
+      c_.final_ll = 1;
+      c_.final_pack = 1;
+      c_.final_monotonic = 1;
+      c_.final_resymbol = 0;
+    } else {
+      c_.supernodal = CHOLMOD_SUPERNODAL;
+    }
+    cholmod_sparse S1 = get_view();
+    L_ = cholmod_analyze(&S1, &c_);
+    if (!L_) throw_internal("CHOLMOD could not analyse the permuted backward-Euler matrix");
+    B_ = cholmod_allocate_dense(nf_, 2, nf_, CHOLMOD_REAL, &c_);
+  }
+
+  // Factorises the free block of the matrix whose values (in the analysed pattern) are given;
+  // false when it is not positive definite.
+  bool factorise(const double* A_values) {
+    for (std::size_t q = 0; q < x_.size(); ++q) x_[q] = A_values[src_[q]];
+    cholmod_sparse S = get_view();
+    cholmod_factorize(&S, L_, &c_);
+    return c_.status == CHOLMOD_OK && L_->minor == L_->n;
+  }
+
+  // X = A⁻¹ B for ncols (1 or 2) right-hand sides of the full length, column-major; the
+  // solution is zero on attached dofs (whose right-hand sides are zero).
+  void solve(const double* B, int ncols, double* X) {
+    double* b = static_cast<double*>(B_->x);
+    for (int j = 0; j < ncols; ++j)
+      for (int k = 0; k < nf_; ++k) b[k + nf_ * j] = B[dof_[k] + full_ * j];
+    cholmod_dense Bv = *B_;
+    Bv.ncol = ncols;
+    Bv.nzmax = static_cast<std::size_t>(nf_) * ncols;
+    cholmod_dense** Xh = ncols == 1 ? &X1_ : &X2_;
+    cholmod_solve2(CHOLMOD_A, L_, &Bv, nullptr, Xh, nullptr, ncols == 1 ? &Y1_ : &Y2_,
+                   ncols == 1 ? &E1_ : &E2_, &c_);
+    if (!*Xh) throw_numerical("CHOLMOD could not solve the backward-Euler system");
+    const double* x = static_cast<const double*>((*Xh)->x);
+    std::fill(X, X + static_cast<std::ptrdiff_t>(full_) * ncols, 0.0);
+    for (int j = 0; j < ncols; ++j)
+      for (int k = 0; k < nf_; ++k) X[dof_[k] + full_ * j] = x[k + nf_ * j];
+  }
+
+ private:
+  cholmod_sparse get_view() {
+    cholmod_sparse s{};
+    s.nrow = s.ncol = static_cast<std::size_t>(nf_);
+    s.nzmax = x_.size();
+    s.p = p_.data();
+    s.i = i_.data();
+    s.x = x_.data();
+    s.stype = -1;  // lower triangle stored
+    s.itype = CHOLMOD_INT;
+    s.xtype = CHOLMOD_REAL;
+    s.dtype = CHOLMOD_DOUBLE;
+    s.sorted = 1;
+    s.packed = 1;
+    return s;
+  }
+  cholmod_common c_{};
+  cholmod_factor* L_ = nullptr;
+  cholmod_dense *B_ = nullptr, *X1_ = nullptr, *Y1_ = nullptr, *E1_ = nullptr, *X2_ = nullptr,
+                *Y2_ = nullptr, *E2_ = nullptr;
+  std::vector<int> p_, i_, src_, dof_;
+  std::vector<double> x_;
+  int nf_ = 0, full_ = 0;
+};
+
+}  // namespace
 
 using dynamics_detail::calc_forces_into;
 using dynamics_detail::calc_volume_and_flat_gradient;
@@ -33,46 +178,34 @@ struct SolidDynamicsSolver::Workspace {
   std::vector<char> fixed_dof;
   VecX inv_mass;                     // per dof, 0 on fixed
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower> ldlt;
-  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>, Eigen::Lower> llt;
-  Eigen::CholmodSimplicialLLT<Eigen::SparseMatrix<double>, Eigen::Lower> sllt;
-  bool analysed = false, llt_analysed = false, use_llt = false, simplicial = false;
+  FreeBlockCholesky llt;
+  bool analysed = false, use_llt = false;
   int factor_age = -1;       // steps since the factorisation (−1: none valid)
   double factor_h = 0.0;     // time step the factorisation was made for
   VecX solve(const VecX& b) {
-    if (use_llt) return simplicial ? VecX(sllt.solve(b)) : VecX(llt.solve(b));
-    return ldlt.solve(b);
+    if (!use_llt) return ldlt.solve(b);
+    VecX x(b.size());
+    llt.solve(b.data(), 1, x.data());
+    return x;
   }
   // Two right-hand sides in one pass over the factor.
   Eigen::Matrix<double, Eigen::Dynamic, 2> solve2(const VecX& b0, const VecX& b1) {
     Eigen::Matrix<double, Eigen::Dynamic, 2> B(b0.size(), 2);
     B.col(0) = b0;
     B.col(1) = b1;
-    if (use_llt) return simplicial ? Eigen::Matrix<double, Eigen::Dynamic, 2>(sllt.solve(B))
-                                   : Eigen::Matrix<double, Eigen::Dynamic, 2>(llt.solve(B));
-    return ldlt.solve(B);
+    if (!use_llt) return ldlt.solve(B);
+    Eigen::Matrix<double, Eigen::Dynamic, 2> X(b0.size(), 2);
+    llt.solve(B.data(), 2, X.data());
+    return X;
   }
   double last_potential_J = NAN;  // backward Euler: potential energy at the accepted state
-  // Factorises A: supernodal LLᵀ when allowed and positive definite, else LDLᵀ.
+  // Factorises A: CHOLMOD's LLᵀ of the free block when allowed and positive definite, else
+  // Eigen's LDLᵀ of the whole matrix (attached dofs as identity rows).
   bool factorise(bool supernodal, bool cholmod_simplicial) {
     use_llt = false;
     if (supernodal) {
-      simplicial = cholmod_simplicial;
-      if (!llt_analysed) {
-        // not positive definite is an expected outcome here
-        if (simplicial) {
-          sllt.cholmod().print = 0;
-          sllt.cholmod().error_handler = nullptr;
-          sllt.analyzePattern(A);
-        } else {
-          llt.cholmod().print = 0;
-          llt.cholmod().error_handler = nullptr;
-          llt.analyzePattern(A);
-        }
-        llt_analysed = true;
-      }
-      if (simplicial) sllt.factorize(A);
-      else llt.factorize(A);
-      if ((simplicial ? sllt.info() : llt.info()) == Eigen::Success) {
+      if (!llt.is_analysed()) llt.analyse(A, fixed_dof, cholmod_simplicial);
+      if (llt.factorise(A.valuePtr())) {
         use_llt = true;
         return true;
       }
