@@ -247,13 +247,14 @@ Points3 deform(const Points3& V, double amount) {
 }
 
 // After update_vertices the compact tree (refitted) gives exactly the fresh build's answers.
-void check_refit(const TriMesh& rest, const std::vector<double>& amounts, int n_each, std::uint64_t seed) {
-  MeshQuery query(rest, kCompact);
+void check_refit(const TriMesh& rest, const std::vector<double>& amounts, int n_each, std::uint64_t seed,
+                 const MeshQueryOptions& options = kCompact) {
+  MeshQuery query(rest, options);
   for (const double amount : amounts) {
     TriMesh deformed = rest;
     deformed.V = deform(rest.V, amount);
     query.update_vertices(deformed.V);
-    const MeshQuery fresh(deformed, kCompact);
+    const MeshQuery fresh(deformed, options);
     const Points3 P = sample_points(deformed, n_each, seed);
     const std::vector<ClosestPoint> a = query.calc_closest_points(P), b = fresh.calc_closest_points(P);
     for (Eigen::Index i = 0; i < P.rows(); ++i) {
@@ -276,6 +277,12 @@ void check_refit(const TriMesh& rest, const std::vector<double>& amounts, int n_
 
 TEST(MeshQueryCompact, UpdateVerticesEqualsFreshBuild) {
   check_refit(make_ellipsoid(Vec3(0.03, 0.02, 0.12), 4), {0.1, 0.5, 1.0, 0.0}, 150, 21);
+  // The Embree-scene path keeps its refit too.
+  check_refit(make_ellipsoid(Vec3(0.03, 0.02, 0.12), 4), {0.1, 0.5, 1.0, 0.0}, 100, 23, kClusters);
+}
+
+TEST(MeshQueryCompact, DefaultIsTheCompactTree) {
+  EXPECT_EQ(MeshQueryOptions{}.closest_point_tree, MeshQueryOptions::ClosestPointTree::compact);
 }
 
 TEST(MeshQueryCompact, UpdateVerticesOnTheVisibleHumanTibia) {

@@ -69,13 +69,15 @@ std::optional<RayHit> intersect_ray_triangle(const Vec3& origin, const Vec3& dir
 // differ only in speed (docs/geometry-queries.md).
 struct MeshQueryOptions {
   // The tree that answers closest-point queries.
+  //   compact (default): leaves of <= 16 triangles made by Embree's SAH builder (rtcBuildBVH),
+  //     stored in a 4-wide float tree with per-leaf slab-cylinder bounds and traversed nearest
+  //     child first without callbacks. About 45 % fewer instructions per closest-point query
+  //     than embree_clusters; the build takes ~1.7x as long.
   //   embree_clusters: Embree's own point query over an Embree scene whose primitives are runs of
-  //     16 Morton-ordered triangles (callbacks per cluster).
-  //   compact: leaves of <= 16 triangles made by Embree's SAH builder (rtcBuildBVH) stored in a
-  //     compact 4-wide float tree traversed nearest child first, without callbacks.
+  //     16 Morton-ordered triangles (callbacks per cluster); the previous default.
   // Rays and inside tests always use an Embree scene over the same clusters.
   enum class ClosestPointTree { embree_clusters, compact };
-  ClosestPointTree closest_point_tree = ClosestPointTree::embree_clusters;
+  ClosestPointTree closest_point_tree = ClosestPointTree::compact;
 };
 
 // Spatial query object over one triangle mesh. Build once (O(F log F)); queries are const,
