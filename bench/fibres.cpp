@@ -47,6 +47,22 @@ void BM_TemplateFibres(benchmark::State& state) {
 }
 BENCHMARK(BM_TemplateFibres)->DenseRange(0, 4)->Unit(benchmark::kMillisecond);
 
+// What decompose_muscle does for the parallel template since 2026-11-24: start parameters spread
+// by mapped cross-section (TemplateMapper::calc_section_samples), then the same mapping.
+void BM_TemplateFibresSectionStarts(benchmark::State& state) {
+  const Attachments areas = find_end_attachments(mg());
+  const TemplateMapper mapper(mg(), areas);
+  for (auto _ : state) {
+    const FibreSet unit = make_template_fibres(FibreTemplate::parallel,
+                                               mapper.calc_section_samples(100), 16,
+                                               default_pennate_rise);
+    FibreSet f = mapper.calc_fibres(unit, true);
+    benchmark::DoNotOptimize(f);
+  }
+  state.SetLabel("parallel, section-proportional starts");
+}
+BENCHMARK(BM_TemplateFibresSectionStarts)->Unit(benchmark::kMillisecond);
+
 void BM_Tetrahedralise(benchmark::State& state) {
   TetOptions opt;
   opt.max_radius_edge_ratio = state.range(0) ? 2.0 : 0.0;
@@ -85,6 +101,21 @@ void BM_HarmonicTrace(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_HarmonicTrace)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
+// The plain field's default since 2026-11-24: seeds spread over the volume, traced both ways.
+void BM_HarmonicTraceVolumeSeeds(benchmark::State& state) {
+  const Attachments areas = find_end_attachments(mg());
+  HarmonicOptions opt;
+  opt.tets.max_radius_edge_ratio = state.range(0) ? 2.0 : 0.0;
+  const HarmonicField field = calc_harmonic_field(mg(), areas, opt);
+  for (auto _ : state) {
+    FibreSet f = trace_harmonic_fibres(
+        field, areas.origin,
+        {.count = 100, .resolution = 16, .seeding = TraceOptions::Seeding::volume});
+    benchmark::DoNotOptimize(f);
+  }
+}
+BENCHMARK(BM_HarmonicTraceVolumeSeeds)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
 // Validation: one decomposition per muscle, method and template; counters carry the results.
 // Counters shared by the validation benchmarks: mean fibre length and its ratio to Ward et al.

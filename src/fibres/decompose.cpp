@@ -71,7 +71,9 @@ Decomposition decompose_muscle(const TriMesh& muscle, const Attachments& areas,
                                     .seeding = options.harmonic.pennation_rad > 0.0
                                                    ? TraceOptions::Seeding::origin_area
                                                    : options.harmonic_seeding,
-                                    .seed_by_flux = options.harmonic_seed_by_flux});
+                                    .seed_by_flux = options.harmonic_seed_by_flux,
+                                    .area_seed_fraction = options.harmonic_area_seed_fraction},
+                                   &areas.insertion);
   d.method_used = FibreMethod::harmonic;
   return d;
 }

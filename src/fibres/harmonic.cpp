@@ -440,10 +440,38 @@ std::vector<detail::WeightedTriangle> calc_level_set_pieces(const HarmonicField&
   return pieces;
 }
 
+using FaceKeys = std::vector<std::pair<std::array<int, 3>, int>>;
+
+// Boundary faces of the tet mesh (sorted vertex triples) with their tets, sorted.
+FaceKeys calc_boundary_faces(const TetMesh& m) {
+  FaceKeys boundary;
+  for (Eigen::Index t = 0; t < m.num_tets(); ++t)
+    for (int c = 0; c < 4; ++c)
+      if (m.neighbours(t, c) < 0) {
+        std::array<int, 3> k{m.T(t, (c + 1) % 4), m.T(t, (c + 2) % 4), m.T(t, (c + 3) % 4)};
+        std::sort(k.begin(), k.end());
+        boundary.emplace_back(k, static_cast<int>(t));
+      }
+  std::sort(boundary.begin(), boundary.end());
+  return boundary;
+}
+
+// The tet behind surface triangle f, or -1.
+int find_boundary_tet(const FaceKeys& boundary, const TriMesh& S, int f) {
+  std::array<int, 3> key{S.F(f, 0), S.F(f, 1), S.F(f, 2)};
+  std::sort(key.begin(), key.end());
+  const auto it = std::lower_bound(
+      boundary.begin(), boundary.end(), key,
+      [](const std::pair<std::array<int, 3>, int>& e, const std::array<int, 3>& k2) {
+        return e.first < k2;
+      });
+  return it == boundary.end() || it->first != key ? -1 : it->second;
+}
+
 }  // namespace
 
 FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea& origin,
-                               const TraceOptions& options) {
+                               const TraceOptions& options, const AttachmentArea* insertion) {
   if (options.count < 1 || options.resolution < 2)
     throw_usage("fibre count must be >= 1 and resolution >= 2");
   if (origin.triangles.empty())
@@ -471,9 +499,50 @@ FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea&
     ok[i] = 1;
   };
   if (options.seeding == TraceOptions::Seeding::volume) {
-    const std::vector<detail::TetSample> seeds = detail::sample_tets(m.V, m.T, options.count);
+    // Optionally a share of the fibres starts on the areas (stratified over each), so that the
+    // ends also reach the parts of the areas the flux hardly feeds.
+    const int per_area =
+        insertion && !insertion->triangles.empty()
+            ? std::clamp(static_cast<int>(std::lround(0.5 * options.area_seed_fraction * options.count)),
+                         0, options.count / 2)
+            : 0;
+    const int n_volume = options.count - 2 * per_area;
+    const std::vector<detail::TetSample> seeds = detail::sample_tets(m.V, m.T, n_volume);
     parallel_for(seeds.size(),
                  [&](std::size_t i) { trace_both_ways(i, seeds[i].point, seeds[i].tet); });
+    if (per_area > 0) {
+      const FaceKeys boundary = calc_boundary_faces(m);
+      const TriMesh& S = field.surface;
+      for (const bool at_origin : {true, false}) {
+        const AttachmentArea& area = at_origin ? origin : *insertion;
+        std::vector<detail::WeightedTriangle> tris;
+        for (int f : area.triangles) {
+          detail::WeightedTriangle t;
+          for (int k = 0; k < 3; ++k) t.corner[k] = S.V.row(S.F(f, k));
+          t.weight = 0.5 * (t.corner[1] - t.corner[0]).cross(t.corner[2] - t.corner[0]).norm();
+          t.tag = f;
+          tris.push_back(t);
+        }
+        const std::vector<detail::TriangleSample> area_seeds = detail::sample_triangles(tris, per_area);
+        const std::size_t first = n_volume + (at_origin ? 0 : per_area);
+        parallel_for(area_seeds.size(), [&](std::size_t j) {
+          const detail::WeightedTriangle& tri = tris[area_seeds[j].piece];
+          const int tet = find_boundary_tet(boundary, S, tri.tag);
+          if (tet < 0) return;
+          const Vec3 inward =
+              -(tri.corner[1] - tri.corner[0]).cross(tri.corner[2] - tri.corner[0]).normalized();
+          const Vec3 p_surface = area_seeds[j].point;
+          const Points3 P = (at_origin ? forward : backward).trace(p_surface + 1e-3 * edge * inward, tet);
+          if (P.rows() < 2) return;
+          Points3 full(P.rows() + 1, 3);
+          full.row(0) = p_surface.transpose();
+          full.bottomRows(P.rows()) = P;
+          if (!at_origin) full = full.colwise().reverse().eval();
+          set.fibres[first + j] = resample_polyline(full, options.resolution);
+          ok[first + j] = 1;
+        });
+      }
+    }
   } else if (options.seeding == TraceOptions::Seeding::level_set) {
     if (!(options.seed_level > 0.0 && options.seed_level < 1.0))
       throw_usage("the seed level of the harmonic potential must be in (0, 1)");

@@ -36,6 +36,7 @@ struct DecomposeOptions {
   // origin area.
   TraceOptions::Seeding harmonic_seeding = TraceOptions::Seeding::volume;
   bool harmonic_seed_by_flux = false;  // level-set seeds by flux instead of area
+  double harmonic_area_seed_fraction = 0.0;  // TraceOptions::area_seed_fraction (volume seeding)
 };
 
 struct Decomposition {

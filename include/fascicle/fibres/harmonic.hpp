@@ -85,13 +85,18 @@ struct TraceOptions {
   Seeding seeding = Seeding::origin_area;
   double seed_level = 0.5;
   bool seed_by_flux = false;
+  // volume seeding with the insertion area given: this share of the fibres starts on the areas
+  // instead (half on each, stratified by area), traced into the muscle to the other area.
+  double area_seed_fraction = 0.0;
 };
 
 // Traces `count` fibres: seeds spread over the origin area's triangles (area-weighted R2
 // sequence), streamlines of the interpolated gradient by RK4 with tet walking until u reaches 1 or
 // the boundary, resampled to `resolution` points. Every point lies in the tet mesh (inside the
 // surface). Fibres are traced in parallel; results are deterministic.
+// `insertion` is needed only for TraceOptions::area_seed_fraction > 0.
 FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea& origin,
-                               const TraceOptions& options = {});
+                               const TraceOptions& options = {},
+                               const AttachmentArea* insertion = nullptr);
 
 }  // namespace fascicle
