@@ -3,10 +3,15 @@
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/log.hpp"
 #include "fascicle/core/progress.hpp"
+#include "muscle_setup.hpp"
+
+#include <tbb/task_group.h>
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <exception>
+#include <utility>
 
 namespace fascicle {
 
@@ -87,6 +92,11 @@ void add_activations(const Model& model, const Table& t, const std::string& file
                                                  "' or '/forceset/<muscle>/activation'"});
 }
 
+// Frames are pipelined: while the muscles of frame k+1 are solved, frame k's muscle-overlap
+// measure and writers run as one task beside them (the solves of a frame depend on the previous
+// frame's solver states only, never on its overlaps or outputs). The writers see a State of their
+// own holding a copy of the frame's pose and muscles, so the files and metrics are the same as in
+// the sequential order, for any number of threads; frames are written in order.
 DriverResult run_frames(const Model& model, const CoordinateTrajectory& traj, const DriverOptions& options,
                         const std::vector<FrameWriter*>& writers) {
   const int frames = static_cast<int>(traj.time.size());
@@ -100,24 +110,83 @@ DriverResult run_frames(const Model& model, const CoordinateTrajectory& traj, co
   std::unique_ptr<ProgressBar> bar;
   if (options.progress) bar = std::make_unique<ProgressBar>("frames", static_cast<size_t>(frames));
   State state = make_state(model);
+  State written;  // the frame handed to the writers (pose, muscles, overlaps; no solver state)
+
+  // The writing task of one frame; its error (if any) is kept with its frame and rethrown by
+  // wait_writing() on the calling thread.
+  tbb::task_group writing;
+  bool pending = false;
+  int writing_frame = -1;
+  std::exception_ptr writing_error;
+  const auto wait_writing = [&] {
+    if (!pending) return;
+    writing.wait();
+    pending = false;
+    if (writing_error) std::rethrow_exception(std::exchange(writing_error, nullptr));
+    ++result.frames_written;
+    if (bar) bar->advance();
+  };
+  // Never leave this scope (also by an exception other than fascicle::Error) with a task running.
+  struct JoinOnExit {
+    tbb::task_group& group;
+    ~JoinOnExit() {
+      try {
+        group.wait();
+      } catch (...) {
+      }
+    }
+  } join_on_exit{writing};
+
   int frame = 0;
+  double failed_time = 0.0;
   try {
     for (; frame < frames; ++frame) {
       state.time_s = traj.time[frame];
       state.q = traj.q.row(frame).transpose();
       if (traj.activation.rows() == frames) state.activation = traj.activation.row(frame).transpose();
       state.stage = Stage::none;
-      forward(model, state);
-      for (FrameWriter* w : writers) w->write_frame(model, state, frame);
-      ++result.frames_written;
-      if (bar) bar->advance();
+      failed_time = state.time_s;
+      calc_pose(model, state);
+      calc_action_lines(model, state);
+      calc_forces(model, state);
+      scene_detail::calc_muscle_shapes(model, state);
+      const int solved = frame;
+      frame = writing_frame;  // an error while waiting belongs to the frame being written
+      if (pending) failed_time = written.time_s;
+      wait_writing();
+      frame = solved;
+      written.time_s = state.time_s;
+      written.q = state.q;
+      written.activation = state.activation;
+      written.X_ground_body = state.X_ground_body;
+      written.muscles = state.muscles;
+      written.stage = Stage::forces;
+      writing_frame = frame;
+      pending = true;
+      writing.run([&model, &writers, &written, &writing_error, frame] {
+        try {
+          calc_muscle_overlaps(model, written);
+          written.stage = Stage::geometry;
+          for (FrameWriter* w : writers) w->write_frame(model, written, frame);
+        } catch (...) {
+          writing_error = std::current_exception();
+        }
+      });
     }
+    frame = writing_frame;
+    failed_time = written.time_s;
+    wait_writing();
   } catch (const Error& e) {
+    // the frame that failed (a solve, or the writing of the frame before it); the frame being
+    // written when a solve failed is completed first, so every frame before the failure is on disk
+    try {
+      wait_writing();
+    } catch (const Error&) {
+    }
     if (bar) bar->finish();
     for (FrameWriter* w : writers) w->finish(model);
     ErrorContext ctx = e.context();
-    const std::string where = "frame " + std::to_string(frame) + " (t = " + std::to_string(state.time_s) +
-                              " s)";
+    const std::string where = "frame " + std::to_string(frame) + " (t = " + std::to_string(failed_time) + " s)";
     if (ctx.suggestion.empty())
       ctx.suggestion = std::to_string(result.frames_written) + " frames before it were written and stay valid";
     throw Error(e.kind(), e.message() + " at " + where, ctx);

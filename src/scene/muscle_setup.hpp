@@ -30,5 +30,8 @@ std::vector<Points3> get_or_decompose_rest_fibres(const Model& model, const Musc
 // Per-fibre length, strain against `rest_length` and pennation against the action line, and
 // their means, into `out`.
 void set_fibre_metrics(const VecX& rest_length, MuscleFrame& out);
+// calc_muscle_geometry() without the overlap measure: every muscle's (and group's) surface and
+// fibres for this frame. Leaves the stage at Stage::forces (the overlaps are still missing).
+void calc_muscle_shapes(const Model& model, State& state);
 
 }  // namespace fascicle::scene_detail

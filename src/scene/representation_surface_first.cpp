@@ -15,6 +15,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 
 namespace fascicle {
@@ -25,6 +26,7 @@ using namespace scene_detail;
 class SurfaceFirst final : public MuscleRepresentation {
  public:
   SurfaceFirst(const Model& model, MuscleIndex mi) {
+    const auto start = std::chrono::steady_clock::now();
     const Muscle& m = model.get_muscle(mi);
     require_muscle_mesh(m, "surface_first");
     SurfaceFirstOptions options;
@@ -79,6 +81,9 @@ class SurfaceFirst final : public MuscleRepresentation {
       rest_fibre_length_.resize(static_cast<Eigen::Index>(fibres.size()));
       for (size_t f = 0; f < fibres.size(); ++f) rest_fibre_length_[f] = calc_polyline_length(fibres[f]);
     }
+    spdlog::debug("surface_first '{}': bound in {:.1f} ms ({} vertices, {} fibres)", m.name,
+                  1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(),
+                  m.rest_mesh.V.rows(), fibres.size());
   }
 
   struct Frame final : RepresentationState {
@@ -94,16 +99,19 @@ class SurfaceFirst final : public MuscleRepresentation {
                      MuscleFrame& out) const override {
     auto* frame = dynamic_cast<Frame*>(rs);
     if (!frame) throw_internal("surface_first: the State was not made for this Model (make_state)");
+    const auto start = std::chrono::steady_clock::now();
     SurfaceFrameInput input;
     input.action_line = out.action_line;
     for (BodyIndex b : area_bodies_) input.attachment_motions.push_back(calc_body_motion(model, state, b));
     for (BodyIndex b : bone_bodies_) input.bone_motions.push_back(calc_body_motion(model, state, b));
     out.surface = frame->solver.calc_frame(input);
     const SurfaceFrameInfo& info = frame->solver.get_info();
-    spdlog::debug("surface_first '{}' t = {:.3f} s: {} contacts, {} rounds, {} solves, {} factorisations and {} "
-                  "low-rank updates so far",
-                  model.get_muscle(mi).name, state.time_s, info.active_contacts, info.contact_rounds,
-                  info.volume_iterations, info.factorisations, info.low_rank_updates);
+    spdlog::debug("surface_first '{}' t = {:.3f} s: {:.1f} ms, {} contacts, {} rounds, {} solves, {} factorisations "
+                  "and {} low-rank updates so far",
+                  model.get_muscle(mi).name, state.time_s,
+                  1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(),
+                  info.active_contacts, info.contact_rounds, info.volume_iterations, info.factorisations,
+                  info.low_rank_updates);
     out.volume_m3 = info.volume_m3;
     out.relative_volume_change = info.volume_m3 / binding_.rest_volume_m3 - 1.0;
     out.max_bone_penetration_m = info.max_penetration_beyond_rest_m;

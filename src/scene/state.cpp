@@ -3,6 +3,7 @@
 
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/parallel.hpp"
+#include "muscle_setup.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -104,6 +105,12 @@ void calc_forces(const Model& model, State& state) {
 }
 
 void calc_muscle_geometry(const Model& model, State& state) {
+  scene_detail::calc_muscle_shapes(model, state);
+  calc_muscle_overlaps(model, state);
+  state.stage = Stage::geometry;
+}
+
+void scene_detail::calc_muscle_shapes(const Model& model, State& state) {
   require_stage(state, Stage::forces, "calc_muscle_geometry");
   if (state.representation_states.size() != model.muscles.size() ||
       state.group_states.size() != model.muscle_groups.size())
@@ -120,8 +127,6 @@ void calc_muscle_geometry(const Model& model, State& state) {
     for (MuscleIndex m : group.muscles) out.push_back(&state.muscles[m.v]);
     group.group->calc_geometry(model, group.muscles, state, state.group_states[g].get(), out);
   }
-  calc_muscle_overlaps(model, state);
-  state.stage = Stage::geometry;
 }
 
 void calc_muscle_overlaps(const Model& model, State& state) {
