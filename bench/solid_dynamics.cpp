@@ -121,6 +121,40 @@ void BM_Factorisation(benchmark::State& state) {
 }
 BENCHMARK(BM_Factorisation)->Unit(benchmark::kMillisecond);
 
+// The dense alternative to CHOLMOD for the cubic 6 x 6 x 10 system (docs/solid-dynamics.md,
+// Performance): Eigen's blocked dense LLᵀ of the free block (864 unknowns; both end layers
+// attached) at rest, range(0) = 0, and its two-column triangular solves, range(0) = 1.
+void BM_DenseFreeBlockLLT(benchmark::State& state) {
+  auto m = make_model(3, 2, VolumeMethod::exact);
+  const ForceEvaluation fe = calc_forces(*m, m->rest.P, {}, 1.0, true);
+  const Eigen::MatrixXd K = Eigen::MatrixXd(Eigen::SparseMatrix<double>(
+      fe.stiffness.selfadjointView<Eigen::Lower>()));
+  std::vector<int> free;
+  for (int i = 0; i < static_cast<int>(K.rows()); ++i)
+    if (!m->fixed[i / 3]) free.push_back(i);
+  const int nf = static_cast<int>(free.size());
+  Eigen::MatrixXd A(nf, nf);
+  const Eigen::MatrixXd Mfull = Eigen::MatrixXd(m->mass_matrix);
+  for (int b = 0; b < nf; ++b)
+    for (int a = 0; a < nf; ++a)
+      A(a, b) = K(free[a], free[b]) +
+                (free[a] % 3 == free[b] % 3 ? Mfull(free[a] / 3, free[b] / 3) / 1e-6 : 0.0);
+  Eigen::LLT<Eigen::MatrixXd> llt(A);
+  Eigen::MatrixXd B = Eigen::MatrixXd::Random(nf, 2);
+  for (auto _ : state) {
+    if (state.range(0) == 0) {
+      llt.compute(A);
+      benchmark::DoNotOptimize(llt.matrixLLT().data());
+    } else {
+      Eigen::MatrixXd X = B;
+      llt.solveInPlace(X);
+      benchmark::DoNotOptimize(X.data());
+    }
+  }
+  state.counters["free_unknowns"] = nf;
+}
+BENCHMARK(BM_DenseFreeBlockLLT)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
 void BM_SymplecticEulerStep(benchmark::State& state) {
   auto m = make_model(2, 2, VolumeMethod::exact);
   SolverOptions o;

@@ -23,12 +23,24 @@ Mat3 calc_deformation_gradient(const Points3& P, const int* idx, const Vec3* g, 
 // Fibre stretch |F a0| at every quadrature point.
 std::vector<double> calc_fibre_stretches(const SolidDynamicsModel& m, const Points3& P);
 
-// calc_forces reusing `out` (its stiffness keeps the pattern between calls).
+// Scratch of the per-span kernels of calc_forces_into: the span's gathered control points, F of
+// its points, their weighted stresses, the span forces and the dense span tangent.
+struct SpanScratch {
+  std::vector<double> p0, p1, p2, Fs, S, f0, f1, f2, Kl;
+};
+// Kept by the solver so that force evaluations inside a step allocate nothing.
+struct ForceScratch {
+  SpanScratch span, velocity;
+};
+
+// calc_forces reusing `out` (its stiffness keeps the pattern between calls) and, when given,
+// `scratch`.
 void calc_forces_into(const SolidDynamicsModel& model, const Points3& P, const Points3& V,
                       double activation, bool with_stiffness,
                       const std::vector<Transform>& X_now_rest, ForceEvaluation& out,
                       double volume_hessian_scale = 0.0,
-                      const std::vector<double>* lambda_start = nullptr, double step_h = 0.0);
+                      const std::vector<double>* lambda_start = nullptr, double step_h = 0.0,
+                      ForceScratch* scratch = nullptr);
 // lambda_start (per quadrature point, calc_fibre_stretches at the step's start), step_h (backward
 // Euler): the force–velocity factor uses the fibre stretch rate (λ − λ_start)/h of the step
 // instead of the velocities V.

@@ -290,10 +290,6 @@ void accumulate_tangent_generic(const double* gcols, int c, const double* D, dou
 
 
 
-// Scratch of the per-span kernels (one set per calc_forces call).
-struct SpanScratch {
-  std::vector<double> p0, p1, p2, Fs, S, f0, f1, f2, Kl;
-};
 
 // Gathers the span's control points of P (column-major #P x 3) into sc.p0..p2 and computes F of
 // its points into sc.Fs (3 x 3m, column-major: F of point i is columns 3 i .. 3 i + 2).
@@ -344,7 +340,8 @@ std::vector<double> calc_fibre_stretches(const SolidDynamicsModel& m, const Poin
 void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Points3& V,
                       double activation, bool with_stiffness, const std::vector<Transform>& X,
                       ForceEvaluation& out, double volume_hessian_scale,
-                      const std::vector<double>* lambda_start, double step_h) {
+                      const std::vector<double>* lambda_start, double step_h,
+                      ForceScratch* scratch) {
   const int n = static_cast<int>(P.rows());
   const SolidDynamicsSpec& s = m.spec;
   out.force.setZero(3 * n);
@@ -372,7 +369,10 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
                             (with_stiffness && volume_hessian_scale != 0.0);
   const double vmax = s.max_fibre_strain_rate_1_s * s.fibre.lambda_opt;
   const int ngroups = static_cast<int>(m.group_g.size());
-  SpanScratch sc, scv;
+  ForceScratch local_scratch;
+  ForceScratch& fsc = scratch ? *scratch : local_scratch;
+  SpanScratch& sc = fsc.span;
+  SpanScratch& scv = fsc.velocity;
   const bool avx2 = cpu_has_avx2();
   for (int k = 0; any_material && k < ngroups; ++k) {
     const Eigen::MatrixXd& G = m.group_g[k];

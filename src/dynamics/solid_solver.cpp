@@ -168,6 +168,8 @@ using dynamics_detail::get_body_pose;
 
 struct SolidDynamicsSolver::Workspace {
   ForceEvaluation fe;
+  ForceEvaluation trial_fe, full_fe;  // line-search evaluations (kept: no allocations per step)
+  dynamics_detail::ForceScratch scratch;
   Eigen::SparseMatrix<double> A;     // system matrix, lower block pattern
   Eigen::SparseMatrix<double> D;     // Rayleigh damping, same pattern (values), may be empty
   Eigen::SparseMatrix<double> D_stiff;  // its β K(rest) part alone (empty when β = 0): the α M
@@ -520,7 +522,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     VecX x = x_n, v = v_n;
     for (int k = 0; k < ns; ++k) {
       const Points3 P = unflatten_points(x), V = unflatten_points(v);
-      calc_forces_into(m, P, V, a, false, in.X_now_rest, w.fe);
+      calc_forces_into(m, P, V, a, false, in.X_now_rest, w.fe, 0.0, nullptr, 0.0, &w.scratch);
       VecX f = w.fe.force + f_ext;
       if (has_D) f -= apply_lower(w.D, v);
       if (sp.volume == VolumeMethod::penalty && sp.volume_damping_Pa_s > 0.0)
@@ -612,7 +614,8 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     return r;
   };
   const double tol = options_.newton_tolerance * w.size_m;
-  calc_forces_into(m, unflatten_points(x), V_start, a, false, in.X_now_rest, w.fe, 0.0, fv_from, h);
+  calc_forces_into(m, unflatten_points(x), V_start, a, false, in.X_now_rest, w.fe, 0.0, fv_from, h,
+                   &w.scratch);
   // x − x̃ is non-zero only on the attached dofs here.
   VecX Mdx = extrapolated ? apply_mass(m.mass_matrix, x - x_tilde)
                           : apply_mass_sparse_input(m.mass_matrix, x - x_tilde);
@@ -640,7 +643,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     } else if (!factored || !modified || slow || shift_changed) {
       shift_changed = false;
       calc_forces_into(m, unflatten_points(x), V_start, a, true, in.X_now_rest, w.fe,
-                       volume_curvature(), fv_from, h);
+                       volume_curvature(), fv_from, h, &w.scratch);
       Eigen::Map<VecX> Av(w.A.valuePtr(), w.A.nonZeros());
       Av = Eigen::Map<const VecX>(w.fe.stiffness.valuePtr(), Av.size()) +
            ((inertia + shift) / (h * h)) * w.inertia_values;
@@ -686,7 +689,8 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     double phi = merit(x, w.fe, Mdx);
     double alpha = 1.0;
     bool accepted = false;
-    ForceEvaluation trial_fe, full_fe;
+    ForceEvaluation& trial_fe = w.trial_fe;
+    ForceEvaluation& full_fe = w.full_fe;
     bool full_ok = false;  // the full step is not inverted (kept for a non-monotone step)
     My = apply_mass(m.mass_matrix, y);
     auto accept = [&](const VecX& xt, ForceEvaluation& fe, VecX* Mdx_t) {
@@ -704,7 +708,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
       const VecX xt = x + alpha * y;
       try {
         calc_forces_into(m, unflatten_points(xt), V_start, a, false, in.X_now_rest, trial_fe, 0.0,
-                         fv_from, h);
+                         fv_from, h, &w.scratch);
       } catch (const Error& e) {
         if (e.kind() == ErrorKind::numerical) continue;
         throw;
