@@ -26,58 +26,36 @@ ErrorContext frame_context(const std::string& name, std::string suggestion = {})
 using detail::PointCloud;
 using detail::PointTree;
 
-// Surface vertices of a muscle from particle positions (rings, then the two cap centres).
-Points3 gather_surface(const FibreBundle& m, const Points3& x, int P) {
-  const int n = static_cast<int>(m.surface_particles.size());
-  Points3 S(n + 2, 3);
-  for (int j = 0; j < n; ++j) S.row(j) = x.row(m.surface_particles[j]);
-  const int rings = n / P;
-  S.row(n).setZero();
-  S.row(n + 1).setZero();
-  for (int k = 0; k < rings; ++k) {
-    S.row(n) += S.row(k * P) / rings;
-    S.row(n + 1) += S.row(k * P + P - 1) / rings;
-  }
-  return S;
+using SurfaceMap = Eigen::SparseMatrix<double, Eigen::RowMajor>;
+
+// The display surface's vertex weights of muscle m as a #vertices x #particles-of-m matrix W:
+// surface vertices = W x_m (muscle-local particle rows).
+SurfaceMap make_surface_map(const FibreBundle& m) {
+  std::vector<Eigen::Triplet<double>> t;
+  for (int v = 0; v < m.num_surface_vertices(); ++v)
+    for (int k = m.surface_weight_start[v]; k < m.surface_weight_start[v + 1]; ++k)
+      t.emplace_back(v, m.surface_weight_particle[k] - m.first_particle, m.surface_weight[k]);
+  SurfaceMap W(std::max(0, m.num_surface_vertices()), m.num_particles);
+  W.setFromTriplets(t.begin(), t.end());
+  return W;
 }
 
 double surface_volume(const FibreBundle& m, const Points3& S) {
   return calc_enclosed_volume(S, m.surface_triangles, S.colwise().mean().transpose());
 }
 
-// dV/dx per particle of muscle m (muscle-local rows; cap-centre terms shared by their ring).
-Points3 calc_particle_volume_gradient(const FibreBundle& m, const Points3& x, int P) {
-  const Points3 S = gather_surface(m, x, P);
-  const Points3 g = calc_volume_gradient(S, m.surface_triangles);
-  const int ns = static_cast<int>(m.surface_particles.size()), rings = ns / P;
-  Points3 out = Points3::Zero(m.num_particles, 3);
-  for (int j = 0; j < ns; ++j) {
-    Vec3 gj = g.row(j);
-    const int i = j % P;
-    if (i == 0) gj += g.row(ns).transpose() / rings;
-    if (i == P - 1) gj += g.row(ns + 1).transpose() / rings;
-    out.row(m.surface_particles[j] - m.first_particle) = gj.transpose();
-  }
-  return out;
+// dV/dx per particle of muscle m (xm, gradient: muscle-local rows): the surface gradient carried
+// back through the vertex weights, W^T dV/dS.
+Points3 calc_particle_volume_gradient(const FibreBundle& m, const SurfaceMap& W, const Points3& xm) {
+  const Points3 S = W * xm;
+  return W.transpose() * calc_volume_gradient(S, m.surface_triangles);
 }
 
 // Moves the muscle's particles xm (muscle-local rows) to xm + t Y with t the root of the cubic
 // V(t) = V0 nearest to the linearised one (the exact volume along the line). Returns t (NaN: none).
-double hold_volume_along(const FibreBundle& m, int P, Points3& xm, const Points3& Y) {
-  const int ns = static_cast<int>(m.surface_particles.size()), rings = ns / P;
-  Points3 Sx(ns + 2, 3), Sy(ns + 2, 3);
-  for (int j = 0; j < ns; ++j) {
-    Sx.row(j) = xm.row(m.surface_particles[j] - m.first_particle);
-    Sy.row(j) = Y.row(m.surface_particles[j] - m.first_particle);
-  }
-  Sx.bottomRows(2).setZero();
-  Sy.bottomRows(2).setZero();
-  for (int k = 0; k < rings; ++k) {
-    Sx.row(ns) += Sx.row(k * P) / rings;
-    Sx.row(ns + 1) += Sx.row(k * P + P - 1) / rings;
-    Sy.row(ns) += Sy.row(k * P) / rings;
-    Sy.row(ns + 1) += Sy.row(k * P + P - 1) / rings;
-  }
+double hold_volume_along(const FibreBundle& m, const SurfaceMap& W, Points3& xm, const Points3& Y) {
+  const Points3 Sx = W * xm;
+  const Points3 Sy = W * Y;
   const Vec3 centre = Sx.colwise().mean().transpose();
   const double t = solve_volume_cubic(calc_volume_cubic(Sx, Sy, m.surface_triangles, centre),
                                       m.rest_volume_m3);
@@ -261,6 +239,8 @@ struct MuscleSystem {
   // -K^-1 dV/dx (muscle-local rows, zero on fixed particles): the volume-correction direction,
   // refreshed on the first iteration of every contact round
   Points3 volume_direction;
+  // display-surface vertices = surface_map * (the muscle's particle rows)
+  SurfaceMap surface_map;
 };
 
 struct MusclePair {
@@ -333,6 +313,7 @@ FibresFirstSolver::FibresFirstSolver(const FibresFirstModel& model)
       for (SparseMatrix::InnerIterator it(sys.K, j); it; ++it)
         if (it.row() == j) sys.diag[j] = &it.valueRef() - sys.K.valuePtr();
     sys.factored_weight.assign(nf, 0.0);
+    sys.surface_map = make_surface_map(m);
     sys.weight.assign(nf, 0.0);
   }
   ws.checked_at.assign(model_.num_bones(), model_.rest);
@@ -666,7 +647,7 @@ double relax_muscle(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
   }
   // volume gradient at the current iterate (first iteration of a round only)
   if (fresh) {
-    const Points3 g = calc_particle_volume_gradient(m, snapshot, P);
+    const Points3 g = calc_particle_volume_gradient(m, sys.surface_map, snapshot.middleRows(base, m.num_particles));
     for (int j = 0; j < nf; ++j) B.row(j).tail<3>() = g.row(m.free[j] - base);
   }
   // global step, then the volume: x = x_u + t Y with Y = -K^-1 g, t the root of V(t) = V0
@@ -677,7 +658,7 @@ double relax_muscle(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
     sys.volume_direction = Points3::Zero(m.num_particles, 3);
     for (int j = 0; j < nf; ++j) sys.volume_direction.row(m.free[j] - base) = -B.row(j).tail<3>();
   }
-  if (volume) volume_failed = !std::isfinite(hold_volume_along(m, P, xm, sys.volume_direction));
+  if (volume) volume_failed = !std::isfinite(hold_volume_along(m, sys.surface_map, xm, sys.volume_direction));
   double largest2 = 0.0;
   sys.plain.resize(nf, 3);
   Eigen::MatrixXd current(nf, 3);
@@ -767,10 +748,10 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
         if (held[m.first_particle + q]) Y.row(q).setZero();
       Points3 xm = x.middleRows(m.first_particle, m.num_particles);
       for (int k = 0; k < std::max(1, o.max_volume_iterations); ++k) {
-        const double V = surface_volume(m, gather_surface(m, x, P));
+        const double V = surface_volume(m, sys.surface_map * xm);
         if (std::abs(V - m.rest_volume_m3) <= 1e-12 * m.rest_volume_m3) break;
         ++info.volume_iterations;
-        if (!std::isfinite(hold_volume_along(m, P, xm, Y))) break;
+        if (!std::isfinite(hold_volume_along(m, sys.surface_map, xm, Y))) break;
         x.middleRows(m.first_particle, m.num_particles) = xm;
       }
     }
@@ -985,7 +966,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
     FibreBundleFrame& fr = frames[mi];
     fr.particles = x.middleRows(m.first_particle, m.num_particles);
     if (m.surface_triangles.rows() > 0) {
-      fr.surface_vertices = gather_surface(m, x, P);
+      fr.surface_vertices = ws_->systems[mi]->surface_map * x.middleRows(m.first_particle, m.num_particles);
       fr.volume_m3 = surface_volume(m, fr.surface_vertices);
       fr.relative_volume_error = std::abs(fr.volume_m3 - m.rest_volume_m3) / m.rest_volume_m3;
     }

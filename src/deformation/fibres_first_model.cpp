@@ -5,6 +5,9 @@
 
 #include "fascicle/core/error.hpp"
 #include "fascicle/deformation/mesh_operators.hpp"
+#include "fascicle/geometry/slicing.hpp"
+
+#include <Eigen/Eigenvalues>
 
 
 #include <algorithm>
@@ -110,10 +113,11 @@ void check_options(const FibresFirstOptions& o) {
   if (!(o.bending_stiffness >= 0.0) || !std::isfinite(o.bending_stiffness))
     throw_bad_input(fmt::format("bending stiffness must be >= 0 N/m (got {})", o.bending_stiffness));
   if (o.particles_per_fibre < 2 || o.cross_neighbours < 0 || o.max_iterations < 1 ||
-      o.max_contact_rounds < 1 || o.max_volume_iterations < 0 || o.anderson_window < 0)
+      o.max_contact_rounds < 1 || o.max_volume_iterations < 0 || o.anderson_window < 0 ||
+      o.surface_rings < 2 || o.surface_ring_points < 3)
     throw_bad_input("invalid fibres-first options (particles_per_fibre >= 2, cross_neighbours >= 0, "
                 "max_iterations >= 1, max_contact_rounds >= 1, max_volume_iterations >= 0, "
-                "anderson_window >= 0)");
+                "anderson_window >= 0, surface_rings >= 2, surface_ring_points >= 3)");
   if (!positive(o.density_kg_per_m3) || !positive(o.contact_weight) || !positive(o.step_tolerance) ||
       !positive(o.volume_tolerance) || !positive(o.max_volume_error) ||
       !positive(o.default_time_step_s) || !(o.damping_per_s >= 0.0) || !(o.bone_margin_m >= 0.0) ||
@@ -123,8 +127,72 @@ void check_options(const FibresFirstOptions& o) {
                 "> 0; damping, margins and distances >= 0; |blend_a| <= 1)");
 }
 
-// Display surface of one muscle: a tube through the boundary fibres closed by two fans.
-void build_surface(FibreBundle& m, const Points3& rest, int P, bool need_volume) {
+
+// Surface vertices from particle positions x (all particles of the model): v = sum_k w_k x_k.
+Points3 gather_surface_vertices(const FibreBundle& m, const Points3& x) {
+  const int nv = m.num_surface_vertices();
+  Points3 S = Points3::Zero(nv, 3);
+  for (int v = 0; v < nv; ++v)
+    for (int k = m.surface_weight_start[v]; k < m.surface_weight_start[v + 1]; ++k)
+      S.row(v) += m.surface_weight[k] * x.row(m.surface_weight_particle[k]);
+  return S;
+}
+
+// Orients the triangles outward (positive enclosed volume) and sets the rest volume.
+void set_rest_volume(FibreBundle& m, const Points3& rest) {
+  const Points3 S = gather_surface_vertices(m, rest);
+  const Vec3 centre = S.colwise().mean().transpose();
+  double volume = calc_enclosed_volume(S, m.surface_triangles, centre);
+  if (volume < 0.0) {
+    m.surface_triangles.col(1).swap(m.surface_triangles.col(2));
+    volume = -volume;
+  }
+  m.rest_volume_m3 = volume;
+}
+
+// Triangles of a closed tube of `rings` x `per_ring` vertices (vertex (r, k) at row
+// r * per_ring + k; the rings run along the tube, k around it) with two fan caps to the
+// vertices rings * per_ring (first ring) and rings * per_ring + 1 (last ring).
+Triangles calc_tube_triangles(int rings, int per_ring) {
+  std::vector<Eigen::Vector3i> tris;
+  const int cap0 = rings * per_ring, cap1 = cap0 + 1;
+  for (int k = 0; k < per_ring; ++k) {
+    const int k1 = (k + 1) % per_ring;
+    for (int r = 0; r + 1 < rings; ++r) {
+      const int a = r * per_ring + k, b = r * per_ring + k1, c = (r + 1) * per_ring + k1,
+                d = (r + 1) * per_ring + k;
+      tris.emplace_back(a, b, c);
+      tris.emplace_back(a, c, d);
+    }
+    tris.emplace_back(cap0, k1, k);
+    tris.emplace_back(cap1, (rings - 1) * per_ring + k, (rings - 1) * per_ring + k1);
+  }
+  Triangles T(static_cast<Eigen::Index>(tris.size()), 3);
+  for (std::size_t t = 0; t < tris.size(); ++t) T.row(static_cast<Eigen::Index>(t)) = tris[t].transpose();
+  return T;
+}
+
+// Appends the weights of one vertex; cap centres are the mean of a ring's vertices.
+void add_cap_centre(FibreBundle& m, int first_vertex, int count) {
+  std::vector<std::pair<int, double>> w;
+  for (int v = first_vertex; v < first_vertex + count; ++v)
+    for (int k = m.surface_weight_start[v]; k < m.surface_weight_start[v + 1]; ++k)
+      w.emplace_back(m.surface_weight_particle[k], m.surface_weight[k] / count);
+  std::sort(w.begin(), w.end());
+  for (std::size_t j = 0; j < w.size(); ++j) {
+    if (j > 0 && w[j].first == w[j - 1].first) {
+      m.surface_weight.back() += w[j].second;
+      continue;
+    }
+    m.surface_weight_particle.push_back(w[j].first);
+    m.surface_weight.push_back(w[j].second);
+  }
+  m.surface_weight_start.push_back(static_cast<int>(m.surface_weight.size()));
+}
+
+// Tube display surface: the boundary fibres' particles (fibre-major in the triangles' ring order:
+// ring = fibre position i, around = boundary fibre) closed by two fans.
+void build_tube_surface(FibreBundle& m, const Points3& rest, int P, bool need_volume) {
   const int nb = static_cast<int>(m.boundary_fibres.size());
   if (nb < 3) {
     if (need_volume)
@@ -133,39 +201,184 @@ void build_surface(FibreBundle& m, const Points3& rest, int P, bool need_volume)
                       muscle_context(m.name, "give more fibres, or set hold_volume = false"));
     return;
   }
-  for (int k = 0; k < nb; ++k)
-    for (int i = 0; i < P; ++i)
-      m.surface_particles.push_back(m.first_particle + m.boundary_fibres[k] * P + i);
-  const int cap0 = nb * P, cap1 = nb * P + 1;
-  std::vector<Eigen::Vector3i> tris;
-  for (int k = 0; k < nb; ++k) {
-    const int k1 = (k + 1) % nb;
-    for (int i = 0; i + 1 < P; ++i) {
-      const int a = k * P + i, b = k1 * P + i, c = k1 * P + i + 1, d = k * P + i + 1;
-      tris.emplace_back(a, b, c);
-      tris.emplace_back(a, c, d);
+  m.surface_weight_start = {0};
+  for (int i = 0; i < P; ++i)
+    for (int k = 0; k < nb; ++k) {
+      m.surface_weight_particle.push_back(m.first_particle + m.boundary_fibres[k] * P + i);
+      m.surface_weight.push_back(1.0);
+      m.surface_weight_start.push_back(static_cast<int>(m.surface_weight.size()));
     }
-    tris.emplace_back(cap0, k1 * P, k * P);
-    tris.emplace_back(cap1, k * P + P - 1, k1 * P + P - 1);
-  }
-  m.surface_triangles.resize(static_cast<Eigen::Index>(tris.size()), 3);
-  for (std::size_t t = 0; t < tris.size(); ++t) m.surface_triangles.row(t) = tris[t].transpose();
+  add_cap_centre(m, 0, nb);
+  add_cap_centre(m, (P - 1) * nb, nb);
+  m.surface_triangles = calc_tube_triangles(P, nb);
+  set_rest_volume(m, rest);
+}
 
-  Points3 S(nb * P + 2, 3);
-  for (int j = 0; j < nb * P; ++j) S.row(j) = rest.row(m.surface_particles[j]);
-  S.row(cap0) = Vec3::Zero().transpose();
-  S.row(cap1) = Vec3::Zero().transpose();
-  for (int k = 0; k < nb; ++k) {
-    S.row(cap0) += S.row(k * P) / nb;
-    S.row(cap1) += S.row(k * P + P - 1) / nb;
+// The minimum-norm weights (scaled by 1/omega_k) that reproduce affine maps: sum_k lambda_k = 1
+// and sum_k lambda_k x_k = p, minimising sum_k lambda_k^2 / omega_k. Empty when the points do
+// not span 3-D.
+std::vector<double> calc_affine_weights(const std::vector<Vec3>& x, const std::vector<double>& omega,
+                                        const Vec3& p) {
+  const int n = static_cast<int>(x.size());
+  Eigen::MatrixXd A(4, n);
+  for (int k = 0; k < n; ++k) A.col(k) << x[k] - p, 1.0;  // relative to p: better conditioned
+  Eigen::MatrixXd AD = A;
+  for (int k = 0; k < n; ++k) AD.col(k) *= omega[k];
+  const Eigen::Matrix4d G = AD * A.transpose();
+  const Eigen::LDLT<Eigen::Matrix4d> ldlt(G);
+  const Eigen::Vector4d mu = ldlt.solve(Eigen::Vector4d(0, 0, 0, 1));
+  const Eigen::VectorXd lambda = AD.transpose() * mu;
+  if (!lambda.allFinite() || (A * lambda - Eigen::Vector4d(0, 0, 0, 1)).norm() > 1e-9) return {};
+  return {lambda.data(), lambda.data() + n};
+}
+
+// Triangulation of a simple counter-clockwise polygon by ear clipping (Meisters 1975): triangles
+// (indices into p) counter-clockwise; empty when no ear is found (a degenerate polygon).
+std::vector<Eigen::Vector3i> calc_ear_triangles(const std::vector<Vec2>& p) {
+  auto cross = [](const Vec2& a, const Vec2& b, const Vec2& c) {
+    return (b - a).x() * (c - a).y() - (b - a).y() * (c - a).x();
+  };
+  std::vector<int> left(p.size());
+  std::iota(left.begin(), left.end(), 0);
+  std::vector<Eigen::Vector3i> out;
+  while (left.size() > 3) {
+    const std::size_t n = left.size();
+    bool clipped = false;
+    for (std::size_t k = 0; k < n && !clipped; ++k) {
+      const int a = left[(k + n - 1) % n], b = left[k], c = left[(k + 1) % n];
+      if (!(cross(p[a], p[b], p[c]) > 0.0)) continue;  // reflex or flat corner
+      bool empty = true;
+      for (int q : left)
+        if (q != a && q != b && q != c && cross(p[a], p[b], p[q]) >= 0.0 &&
+            cross(p[b], p[c], p[q]) >= 0.0 && cross(p[c], p[a], p[q]) >= 0.0)
+          empty = false;
+      if (!empty) continue;
+      out.emplace_back(a, b, c);
+      left.erase(left.begin() + static_cast<std::ptrdiff_t>(k));
+      clipped = true;
+    }
+    if (!clipped) return {};
   }
-  const Vec3 centre = S.colwise().mean().transpose();
-  double volume = calc_enclosed_volume(S, m.surface_triangles, centre);
-  if (volume < 0.0) {
-    m.surface_triangles.col(1).swap(m.surface_triangles.col(2));
-    volume = -volume;
+  out.emplace_back(left[0], left[1], left[2]);
+  return out;
+}
+
+// Loft display surface from the spec's rest surface (see FibreBundleSpec::rest_surface): slices
+// normal to the surface's principal axis at `rings` levels between 3 % and 97 % of its extent,
+// the largest closed contour of each resampled to `per_ring` points equally spaced in arc length
+// (counter-clockwise about the axis, starting at the point farthest along a fixed normal
+// direction), the two end rings closed by ear-clipped caps (a fan would fold over a concave
+// ring). Each vertex is carried by the particles of its
+// nearest particle's fibre and of that fibre's cross neighbours, at the fibre positions i-1, i,
+// i+1, with calc_affine_weights (omega = 1/(d^2 + s^2), s the mean spring length): a rigid or
+// affine motion of those particles moves the vertex the same way. Returns false (nothing set) when
+// a slice has no closed contour or a vertex gets no weights.
+bool build_loft_surface(FibreBundle& m, const TriMesh& surface, const Points3& rest, int P,
+                        const std::vector<std::vector<int>>& neighbours, int rings, int per_ring) {
+  if (surface.F.rows() < 4 || surface.V.rows() < 4 || rings < 2 || per_ring < 3) return false;
+  const Vec3 c = surface.V.colwise().mean().transpose();
+  const Points3 centred = surface.V.rowwise() - c.transpose();
+  const Eigen::SelfAdjointEigenSolver<Mat3> eig(centred.transpose() * centred);
+  const Vec3 axis = eig.eigenvectors().col(2).normalized();
+  const Vec3 u = axis.unitOrthogonal();
+  const VecX along = centred * axis;
+  const double lo = along.minCoeff(), hi = along.maxCoeff();
+  Points3 V(rings * per_ring, 3);
+  for (int r = 0; r < rings; ++r) {
+    const double s = lo + (0.03 + 0.94 * r / (rings - 1)) * (hi - lo);
+    const std::vector<Contour> contours = slice_mesh(surface, c + s * axis, axis);
+    const Contour* best = nullptr;
+    double best_area = 0.0;
+    for (const Contour& k : contours)
+      if (k.closed && k.points.rows() >= 3 && std::abs(compute_contour_area(k, axis)) > best_area) {
+        best_area = std::abs(compute_contour_area(k, axis));
+        best = &k;
+      }
+    if (!best) return false;
+    Points3 ring = best->points;
+    if (compute_contour_area(*best, axis) < 0.0) ring = ring.colwise().reverse().eval();
+    const Eigen::Index n = ring.rows();
+    Eigen::Index start = 0;
+    for (Eigen::Index j = 1; j < n; ++j)
+      if (ring.row(j).dot(u) > ring.row(start).dot(u)) start = j;
+    VecX arc(n + 1);
+    arc[0] = 0.0;
+    for (Eigen::Index j = 0; j < n; ++j)
+      arc[j + 1] = arc[j] + (ring.row((start + j + 1) % n) - ring.row((start + j) % n)).norm();
+    Eigen::Index seg = 0;
+    for (int k = 0; k < per_ring; ++k) {
+      const double target = arc[n] * k / per_ring;
+      while (seg + 1 < n && arc[seg + 1] < target) ++seg;
+      const double len = arc[seg + 1] - arc[seg];
+      const double t = len > 0.0 ? std::clamp((target - arc[seg]) / len, 0.0, 1.0) : 0.0;
+      V.row(r * per_ring + k) = (1.0 - t) * ring.row((start + seg) % n) + t * ring.row((start + seg + 1) % n);
+    }
   }
-  m.rest_volume_m3 = volume;
+  // weights
+  const int base = m.first_particle;
+  const double s2 = m.mean_spring_length_m * m.mean_spring_length_m;
+  std::vector<int> start_of = {0}, particle;
+  std::vector<double> weight;
+  std::vector<char> boundary(m.num_fibres, 0);
+  std::vector<int> nearest_particles;
+  for (Eigen::Index v = 0; v < V.rows(); ++v) {
+    const Vec3 p = V.row(v).transpose();
+    int nearest = base;
+    for (int q = base; q < base + m.num_particles; ++q)
+      if ((rest.row(q) - p.transpose()).squaredNorm() < (rest.row(nearest) - p.transpose()).squaredNorm()) nearest = q;
+    const int f = (nearest - base) / P, i = (nearest - base) % P;
+    boundary[f] = 1;
+    nearest_particles.push_back(nearest);
+    std::vector<int> ids;
+    std::vector<Vec3> x;
+    std::vector<double> omega;
+    std::vector<int> fibres = {f};
+    fibres.insert(fibres.end(), neighbours[f].begin(), neighbours[f].end());
+    for (int g : fibres)
+      for (int j = std::max(0, i - 1); j <= std::min(P - 1, i + 1); ++j) {
+        ids.push_back(base + g * P + j);
+        x.push_back(rest.row(ids.back()).transpose());
+        omega.push_back(1.0 / ((x.back() - p).squaredNorm() + s2));
+      }
+    const std::vector<double> w = calc_affine_weights(x, omega, p);
+    if (w.empty()) return false;
+    for (std::size_t k = 0; k < ids.size(); ++k) {
+      particle.push_back(ids[k]);
+      weight.push_back(w[k]);
+    }
+    start_of.push_back(static_cast<int>(weight.size()));
+  }
+  // caps: the end rings (planar at rest) triangulated by ear clipping, facing out of the ends
+  const Vec3 w = axis.cross(u);
+  std::vector<Eigen::Vector3i> tris;
+  for (int end = 0; end < 2; ++end) {
+    const int first = end == 0 ? 0 : (rings - 1) * per_ring;
+    std::vector<Vec2> ring(per_ring);
+    for (int k = 0; k < per_ring; ++k) ring[k] = Vec2(V.row(first + k).dot(u), V.row(first + k).dot(w));
+    const std::vector<Eigen::Vector3i> cap = calc_ear_triangles(ring);
+    if (cap.empty()) return false;
+    for (const Eigen::Vector3i& t : cap)
+      tris.push_back(end == 0 ? Eigen::Vector3i(first + t[0], first + t[2], first + t[1])
+                              : Eigen::Vector3i(first + t[0], first + t[1], first + t[2]));
+  }
+  const Triangles walls = calc_tube_triangles(rings, per_ring);
+  m.surface_triangles.resize(static_cast<Eigen::Index>(tris.size()) + 2 * rings * per_ring - 2 * per_ring, 3);
+  Eigen::Index row = 0;
+  for (Eigen::Index t = 0; t < walls.rows(); ++t)
+    if (walls.row(t).maxCoeff() < rings * per_ring) m.surface_triangles.row(row++) = walls.row(t);
+  for (const Eigen::Vector3i& t : tris) m.surface_triangles.row(row++) = t.transpose();
+  m.surface_weight_start = std::move(start_of);
+  m.surface_weight_particle = std::move(particle);
+  m.surface_weight = std::move(weight);
+  m.boundary_fibres.clear();
+  for (int g = 0; g < m.num_fibres; ++g)
+    if (boundary[g]) m.boundary_fibres.push_back(g);
+  m.surface_from_rest_mesh = true;
+  std::sort(nearest_particles.begin(), nearest_particles.end());
+  nearest_particles.erase(std::unique(nearest_particles.begin(), nearest_particles.end()), nearest_particles.end());
+  m.contact_particles = std::move(nearest_particles);
+  set_rest_volume(m, rest);
+  return true;
 }
 
 }  // namespace
@@ -284,8 +497,12 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
     }
     Points3 mid(m.num_fibres, 3);
     for (int f = 0; f < m.num_fibres; ++f) mid.row(f) = model.rest.row(id(f, P / 2));
-    for (const auto& [f, g] : calc_fibre_neighbours(mid, options.cross_neighbours))
+    std::vector<std::vector<int>> fibre_neighbours(m.num_fibres);
+    for (const auto& [f, g] : calc_fibre_neighbours(mid, options.cross_neighbours)) {
       for (int i = 0; i < P; ++i) add_spring(id(f, i), id(g, i), options.across_stiffness);
+      fibre_neighbours[f].push_back(g);
+      fibre_neighbours[g].push_back(f);
+    }
     model.first_spring.push_back(static_cast<int>(model.springs.size()));
     double mean = 0.0;
     int count = 0;
@@ -362,19 +579,24 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
         m.free.push_back(base + p);
       }
 
-    // boundary fibres: convex hull of the middle cross-section, projected on the plane normal to
-    // the mean fibre direction
+    // display surface: the loft of the rest surface when the spec gives one, else the tube
+    // through the convex hull of the middle cross-section (projected on the plane normal to the
+    // mean fibre direction)
+    const FibreBundleSpec& spec = specs[static_cast<std::size_t>(&m - model.muscles.data())];
+    const bool loft = spec.rest_surface.F.rows() > 0 &&
+                      build_loft_surface(m, spec.rest_surface, model.rest, P, fibre_neighbours,
+                                         options.surface_rings, options.surface_ring_points);
     Vec3 axis = Vec3::Zero();
     for (int f = 0; f < m.num_fibres; ++f)
       axis += (model.rest.row(id(f, P - 1)) - model.rest.row(id(f, 0))).transpose();
-    if (axis.norm() > 0.0) {
+    if (axis.norm() > 0.0 && !loft) {
       axis.normalize();
       const Vec3 u = axis.unitOrthogonal(), v = axis.cross(u);
       std::vector<Vec2> section(m.num_fibres);
       for (int f = 0; f < m.num_fibres; ++f) section[f] = Vec2(mid.row(f).dot(u), mid.row(f).dot(v));
-      m.boundary_fibres = calc_convex_hull(section);
-      // contact fibres: the hull's, and those within muscle_contact_band x the mean nearest-fibre
-      // spacing of its edges
+      if (!loft) m.boundary_fibres = calc_convex_hull(section);
+      // contact fibres: the boundary fibres, and those within muscle_contact_band x the mean
+      // nearest-fibre spacing of the hull's edges (tube) or of a boundary fibre (loft)
       std::vector<char> near(m.num_fibres, 0);
       for (int f : m.boundary_fibres) near[f] = 1;
       const int nb = static_cast<int>(m.boundary_fibres.size());
@@ -388,7 +610,8 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
         }
         for (int f = 0; f < m.num_fibres; ++f)
           for (int k = 0; k < nb && !near[f]; ++k) {
-            const Vec2 a = section[m.boundary_fibres[k]], b = section[m.boundary_fibres[(k + 1) % nb]];
+            const Vec2 a = section[m.boundary_fibres[k]];
+            const Vec2 b = loft ? a : section[m.boundary_fibres[(k + 1) % nb]];
             const double t = std::clamp((section[f] - a).dot(b - a) / std::max((b - a).squaredNorm(), 1e-300), 0.0, 1.0);
             if ((section[f] - (a + t * (b - a))).norm() <= options.muscle_contact_band * spacing)
               near[f] = 1;
@@ -398,7 +621,7 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
         if (near[f])
           for (int i = 0; i < P; ++i) m.contact_particles.push_back(id(f, i));
     }
-    build_surface(m, model.rest, P, options.hold_volume);
+    if (!loft) build_tube_surface(m, model.rest, P, options.hold_volume);
   }
 
   // masses (density x volume share)

@@ -93,6 +93,7 @@ class FibresFirst final : public MuscleGroupRepresentation {
                                                          "' a mesh, or use 'surface_first'"});
       s.volume_m3 = m.rest_volume_m3;
       s.action_line = line;
+      s.rest_surface = m.rest_mesh;  // the boundary fibres follow its outline
       specs.push_back(std::move(s));
     }
     model_ = build_fibres_first_model(specs, bones, o);

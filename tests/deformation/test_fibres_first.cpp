@@ -3,11 +3,14 @@
 // stretch, and input errors.
 #include "fascicle/core/error.hpp"
 #include "fascicle/deformation/fibres_first.hpp"
+#include "fascicle/geometry/mesh_validation.hpp"
 #include "fascicle/geometry/primitives.hpp"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <functional>
 
 namespace fascicle {
@@ -378,6 +381,100 @@ Error catch_error(F&& f) {
   }
   ADD_FAILURE() << "no fascicle::Error thrown";
   return Error(ErrorKind::internal, "none");
+}
+
+// A crescent (annulus sector: radii 9-17 mm, 210 degrees, opening towards -x) extruded along z
+// over [0, L], as a closed outward mesh; and straight fibres along z on a 3 x 9 polar grid inside.
+TriMesh make_crescent_prism(double L, int n) {
+  const double r0 = 0.009, r1 = 0.017, half = 105.0 * M_PI / 180.0;
+  Points3 V(4 * (n + 1), 3);
+  for (int j = 0; j <= n; ++j) {
+    const double a = -half + 2.0 * half * j / n;
+    V.row(j) << r1 * std::cos(a), r1 * std::sin(a), 0.0;              // outer, bottom
+    V.row(n + 1 + j) << r0 * std::cos(a), r0 * std::sin(a), 0.0;      // inner, bottom
+    V.row(2 * (n + 1) + j) << r1 * std::cos(a), r1 * std::sin(a), L;  // outer, top
+    V.row(3 * (n + 1) + j) << r0 * std::cos(a), r0 * std::sin(a), L;  // inner, top
+  }
+  std::vector<Eigen::Vector3i> t;
+  auto quad = [&](int a, int b, int c, int d) { t.emplace_back(a, b, c); t.emplace_back(a, c, d); };
+  const int ob = 0, ib = n + 1, ot = 2 * (n + 1), it = 3 * (n + 1);
+  for (int j = 0; j < n; ++j) {
+    quad(ob + j, ob + j + 1, ot + j + 1, ot + j);      // outer wall
+    quad(ib + j + 1, ib + j, it + j, it + j + 1);      // inner wall
+    quad(ob + j + 1, ob + j, ib + j, ib + j + 1);      // bottom
+    quad(ot + j, ot + j + 1, it + j + 1, it + j);      // top
+  }
+  quad(ob, ot, it, ib);  // end walls
+  quad(ob + n, ib + n, it + n, ot + n);
+  TriMesh m{V, Triangles(static_cast<Eigen::Index>(t.size()), 3)};
+  for (std::size_t k = 0; k < t.size(); ++k) m.F.row(static_cast<Eigen::Index>(k)) = t[k].transpose();
+  return m;
+}
+
+std::vector<Points3> make_crescent_fibres(double L) {
+  std::vector<Points3> fibres;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 9; ++j) {
+      const double r = 0.010 + 0.003 * i, a = (-95.0 + 190.0 * j / 8) * M_PI / 180.0;
+      Points3 f(5, 3);
+      for (int k = 0; k < 5; ++k) f.row(k) << r * std::cos(a), r * std::sin(a), L * k / 4;
+      fibres.push_back(f);
+    }
+  return fibres;
+}
+
+// With a rest surface the display surface is its loft carried by the particles: concave where the
+// surface is (the crescent's hollow is outside it, which the convex-hull tube covers), outward,
+// closed, without self-intersections; the vertex weights reproduce the rest pose and rigid
+// motions; the volume it encloses is held under stretch.
+TEST(FibresFirst, LoftSurfaceFollowsAConcaveRestSurface) {
+  const double L = 0.08;
+  const EndBones bones(L);
+  FibreBundleSpec spec{"crescent", make_crescent_fibres(L), 0, 1};
+  const FibresFirstModel hull_model = build_fibres_first_model({spec}, bones.list(), tight_options());
+  spec.rest_surface = make_crescent_prism(L, 40);
+  const MeshReport report = validate_mesh(spec.rest_surface);
+  ASSERT_TRUE(report.is_solid()) << fmt::format("{}", fmt::join(report.list_problems(), "; "));
+  const FibresFirstModel model = build_fibres_first_model({spec}, bones.list(), tight_options());
+  const FibreBundle& m = model.muscles[0];
+  ASSERT_TRUE(m.surface_from_rest_mesh);
+  EXPECT_FALSE(hull_model.muscles[0].surface_from_rest_mesh);
+  FibresFirstSolver solver(model);
+  solver.calc_frame({});
+  const TriMesh rest_surface{solver.get_muscles()[0].surface_vertices, m.surface_triangles};
+  EXPECT_EQ(rest_surface.V.rows(), 16 * 24);
+  EXPECT_TRUE(calc_self_intersections(rest_surface).empty());
+  // vertices at rest lie on the crescent's surface
+  const MeshQuery crescent(spec.rest_surface);
+  for (Eigen::Index v = 0; v < rest_surface.V.rows(); ++v)
+    EXPECT_LT(std::abs(crescent.calc_signed_distance(Vec3(rest_surface.V.row(v).transpose()))), 1e-12) << v;
+  // outward and concave: the hollow's centre is outside, the crescent's middle inside; the hull
+  // tube covers the hollow
+  const MeshQuery loft(rest_surface);
+  EXPECT_FALSE(loft.calc_is_inside(Vec3(0.0, 0.0, L / 2)));
+  EXPECT_TRUE(loft.calc_is_inside(Vec3(0.013, 0.0, L / 2)));
+  EXPECT_TRUE(loft.calc_is_inside(Vec3(-0.003, 0.012, L / 2)));
+  FibresFirstSolver hull_solver(hull_model);
+  hull_solver.calc_frame({});
+  const MeshQuery hull(TriMesh{hull_solver.get_muscles()[0].surface_vertices, hull_model.muscles[0].surface_triangles});
+  EXPECT_TRUE(hull.calc_is_inside(Vec3(0.0, 0.0, L / 2)));
+  // volume: the 24-gon section (area between that of the inscribed polygon and the crescent's
+  // 381 mm^2) over 94 % of the length
+  const double crescent_area = 0.5 * (0.017 * 0.017 - 0.009 * 0.009) * 210.0 * M_PI / 180.0;
+  EXPECT_NEAR(m.rest_volume_m3 / (crescent_area * 0.94 * L), 1.0, 0.05);
+  // a rigid motion of both bones moves the surface rigidly
+  Transform T = Transform::Identity();
+  T.translate(Vec3(0.01, -0.02, 0.03)).rotate(Eigen::AngleAxisd(0.7, Vec3(1, 2, 3).normalized()));
+  FibresFirstSolver moved_solver(model);
+  moved_solver.calc_frame({{T, T}});
+  const Points3 expected = (rest_surface.V * T.linear().transpose()).rowwise() + T.translation().transpose();
+  EXPECT_LT((moved_solver.get_muscles()[0].surface_vertices - expected).cwiseAbs().maxCoeff(), 1e-9);
+  // stretch by 20 %: the loft's volume is held
+  for (int k = 1; k <= 4; ++k) {
+    solver.calc_frame({{Transform::Identity(), translation(Vec3(0, 0, 0.004 * k))}});
+    EXPECT_LT(solver.get_muscles()[0].relative_volume_error, 1e-6) << k;
+    EXPECT_EQ(solver.get_muscles()[0].max_bone_penetration_m, 0.0);
+  }
 }
 
 TEST(FibresFirst, BadInput) {

@@ -35,6 +35,13 @@ struct FibreBundleSpec {
   // a fibre end farther than end_attachment_distance_m from its bone is carried along the action
   // line (a tendon) instead of being left free; see ParticleRole::carried.
   Points3 action_line;
+  // Optional closed rest surface of the muscle (world, outward triangles, e.g. the segmented
+  // mesh). When given, the display surface is this surface resampled as a loft of
+  // FibresFirstOptions::surface_rings contours x surface_ring_points points, each vertex carried
+  // by nearby particles with fixed affine weights (concave sections stay concave); when empty, or
+  // when a slice has no closed contour, it is the tube through the section's convex-hull fibres
+  // (docs/representations.md, "Display surface and volume").
+  TriMesh rest_surface;
 };
 
 struct FibresFirstOptions {
@@ -84,6 +91,10 @@ struct FibresFirstOptions {
   // those within this many mean fibre spacings of the hull's edges (1: about one more layer;
   // on the VH shank 5x the pairs and about 1.5x the time per frame).
   double muscle_contact_band = 0.0;
+  // Loft display surface (muscles whose spec gives a rest surface): contours along the rest
+  // surface's principal axis and points per contour.
+  int surface_rings = 16;
+  int surface_ring_points = 24;
   // Skin of the muscle-pair candidate list (a Verlet list): candidates are the contact-particle
   // pairs closer than muscle_margin_m + this when the list is built, and the list is rebuilt
   // only once a contact particle has moved more than half of it. Larger: fewer rebuilds, more
@@ -123,14 +134,26 @@ struct FibreBundle {
   Points3 rest_action_line; // the spec's action line (empty: none)
   std::vector<int> free;    // model particle indices of its free particles (sorted)
   std::vector<int> free_index;  // per muscle particle: index into `free`, or -1
-  std::vector<int> boundary_fibres;  // the rest cross-section's convex hull, counter-clockwise
-  // Display surface: vertices = boundary-fibre particles (in surface_particles order) followed by
-  // the two cap centres (means of the first and last ring); triangles fixed, outward.
-  std::vector<int> surface_particles;  // model particle indices
+  // Boundary fibres (muscle-local fibre indices). Tube surface: the rest cross-section's convex
+  // hull, counter-clockwise about the mean fibre direction. Loft surface: the fibres holding the
+  // particle nearest to some surface vertex (ascending).
+  std::vector<int> boundary_fibres;
+  bool surface_from_rest_mesh = false;  // true: loft of the spec's rest surface; false: tube
+  // Display surface: vertex v = sum_k surface_weight[k] x[surface_weight_particle[k]] over
+  // k in [surface_weight_start[v], surface_weight_start[v + 1]) (model particle indices; weights
+  // sum to 1 and reproduce the vertex's rest position). Tube: the boundary fibres' particles
+  // (weight 1) then two cap centres (means of the first and last ring). Loft: each vertex carried
+  // by the particles of its nearest fibre and that fibre's cross neighbours at three positions
+  // along them, with the minimum-norm affine-reproducing weights. Triangles fixed, outward.
+  std::vector<int> surface_weight_start;
+  std::vector<int> surface_weight_particle;
+  std::vector<double> surface_weight;
   // Particles kept apart from other muscles: those of the boundary fibres and of the fibres
   // within options.muscle_contact_band x the mean nearest-fibre spacing of the hull's edges
+  // (tube) or of a boundary fibre (loft), measured in the rest mid-section
   std::vector<int> contact_particles;
   Triangles surface_triangles;
+  int num_surface_vertices() const { return static_cast<int>(surface_weight_start.size()) - 1; }
   double rest_volume_m3 = 0.0;    // enclosed by the rest display surface
   double particle_mass_kg = 0.0;
   double mean_spring_length_m = 0.0;
