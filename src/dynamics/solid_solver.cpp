@@ -364,9 +364,11 @@ void SolidDynamicsSolver::correct_state(const Points3& P, const Points3& V) {
   if (P.rows() != n || V.rows() != n)
     throw_bad_input(fmt::format("solid state correction has {} positions and {} velocities, the model {} points",
                                 P.rows(), V.rows(), n));
+  // The correction's velocity change is no acceleration to extrapolate: shift the previous
+  // velocities by it too.
+  if (ws_->prev_h > 0.0) ws_->prev_v += flatten_points(V) - flatten_points(state_.V);
   state_.P = P;
   state_.V = V;
-  ws_->prev_h = 0.0;  // the correction's velocity change is no acceleration to extrapolate
 }
 
 void SolidDynamicsSolver::project_volume(SolidState& s, double dt, StepReport& r) const {
