@@ -183,6 +183,46 @@ TEST(SceneDriver, StepsFramesInOrderWithAllStagesDone) {
   EXPECT_LT(w.lengths[5], w.lengths[0]);
 }
 
+// A writer that fails at one frame: frames are written one step behind the solves (pipelined), so
+// the error must still name the frame being written, the writers must be finished, and the frames
+// before it must have been handed over in order.
+TEST(SceneDriver, WriterFailureNamesItsFrameAndFinishesTheWriters) {
+  struct FailingWriter final : FrameWriter {
+    int fail_at = 7;
+    std::vector<int> frames;
+    bool finished = false;
+    void begin(const Model&, const RunInfo&) override {}
+    void write_frame(const Model&, const State& s, int frame) override {
+      EXPECT_EQ(s.stage, Stage::geometry);
+      if (frame == fail_at) throw_bad_input("test writer cannot write this frame");
+      frames.push_back(frame);
+    }
+    void finish(const Model&) override { finished = true; }
+    std::vector<fs::path> get_outputs() const override { return {}; }
+  };
+  const Model model = compile(make_two_link_scene(), make_default_registry());
+  const CoordinateTrajectory traj = make_trajectory(model, make_angle_motion(11, 90.0), 20.0);
+  FailingWriter w;
+  RecordingWriter other;
+  DriverOptions o;
+  o.progress = false;
+  try {
+    run_frames(model, traj, o, {&other, &w});
+    ADD_FAILURE() << "the writer's error was not reported";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::bad_input);
+    const std::string what = e.what();
+    EXPECT_NE(what.find("at frame 7 (t = " + std::to_string(traj.time[7]) + " s)"), std::string::npos) << what;
+    EXPECT_NE(what.find("7 frames before it were written"), std::string::npos) << what;
+  }
+  EXPECT_TRUE(w.finished && other.finished);
+  ASSERT_EQ(w.frames.size(), 7u);
+  for (int f = 0; f < 7; ++f) EXPECT_EQ(w.frames[f], f);
+  // the other writer got frame 7 too (it comes first), and nothing after it
+  ASSERT_EQ(other.frames.size(), 8u);
+  EXPECT_EQ(other.frames.back(), 7);
+}
+
 TEST(SceneDriver, MotionValuesOutsideRangeAreClampedAndUnknownColumnsIgnored) {
   SceneSpec s = make_two_link_scene();
   s.joints[1].coordinates[0].range_max = 45.0 * kDeg;
