@@ -358,12 +358,68 @@ std::vector<Points3> calc_embedded_fibres(const FibreEmbedding& embedding,
   return split_fibres(embedding, P);
 }
 
+namespace {
+
+// The framed line's segments, for find_closest_line_parameter's result found with pruning.
+struct LineSegments {
+  std::vector<Vec3> start, direction, centre;
+  std::vector<double> squared_length, radius;
+  explicit LineSegments(const FramedLine& line) {
+    for (int k = 0; k + 1 < line.num_samples(); ++k) {
+      const Vec3 a = line.points.row(k).transpose();
+      const Vec3 d = line.points.row(k + 1).transpose() - a;
+      start.push_back(a);
+      direction.push_back(d);
+      centre.push_back(a + 0.5 * d);
+      squared_length.push_back(d.squaredNorm());
+      radius.push_back(0.5 * d.norm());
+    }
+  }
+  int size() const { return static_cast<int>(start.size()); }
+  // squared distance from p to segment k and its parameter u (the same arithmetic as
+  // find_closest_line_parameter)
+  double calc_squared_distance(int k, const Vec3& p, double& u) const {
+    const double dd = squared_length[k];
+    u = dd > 0.0 ? std::clamp((p - start[k]).dot(direction[k]) / dd, 0.0, 1.0) : 0.0;
+    return (start[k] + u * direction[k] - p).squaredNorm();
+  }
+};
+
+// find_closest_line_parameter(line, p).s with the same result (the first segment, in order, of
+// the smallest squared distance): segment `hint` is tried first, and a segment is skipped when
+// its bounding sphere is farther than the best distance so far (it cannot be closer or equal).
+double find_closest_line_fraction(const LineSegments& segments, const Vec3& p, int& hint) {
+  const int n = segments.size();
+  double best_u = 0.0;
+  int best_k = std::clamp(hint, 0, n - 1);
+  double best_d2 = segments.calc_squared_distance(best_k, p, best_u);
+  for (int k = 0; k < n; ++k) {
+    if (k == hint) continue;
+    const double reach = std::sqrt(best_d2) + segments.radius[k];
+    // (1 + 1e-9): the bound is not decided by round-off
+    if ((segments.centre[k] - p).squaredNorm() > reach * reach * (1.0 + 1e-9)) continue;
+    double u = 0.0;
+    const double d2 = segments.calc_squared_distance(k, p, u);
+    if (d2 < best_d2 || (d2 == best_d2 && k < best_k)) {
+      best_d2 = d2;
+      best_k = k;
+      best_u = u;
+    }
+  }
+  hint = best_k;
+  return (best_k + best_u) / n;
+}
+
+}  // namespace
+
 FibreMetrics calc_fibre_metrics(const std::vector<Points3>& fibres, const Points3& action_line) {
   const FramedLine line = calc_framed_line(action_line, 64, calc_default_start_frame(action_line));
+  const LineSegments segments(line);
   FibreMetrics m;
   const Eigen::Index n = static_cast<Eigen::Index>(fibres.size());
   m.length_m = VecX::Zero(n);
   m.pennation_rad = VecX::Zero(n);
+  int hint = 0;  // the closest segment of the previous fibre segment's midpoint
   for (Eigen::Index f = 0; f < n; ++f) {
     const Points3& P = fibres[f];
     double length = 0.0, angle_sum = 0.0;
@@ -372,7 +428,7 @@ FibreMetrics calc_fibre_metrics(const std::vector<Points3>& fibres, const Points
       const double l = seg.norm();
       if (!(l > 0.0)) continue;
       const Vec3 mid = 0.5 * (P.row(i) + P.row(i + 1)).transpose();
-      const Vec3 t = calc_line_point(line, find_closest_line_parameter(line, mid).s).frame * Vec3::UnitX();
+      const Vec3 t = calc_line_point(line, find_closest_line_fraction(segments, mid, hint)).frame * Vec3::UnitX();
       angle_sum += l * std::acos(std::min(1.0, std::abs(t.dot(seg) / l)));
       length += l;
     }

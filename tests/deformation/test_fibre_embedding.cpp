@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdint>
 
 namespace fascicle {
 namespace {
@@ -222,6 +223,43 @@ TEST(FibreMetrics, PennationOfTiltedFibres) {
   EXPECT_NEAR(m.pennation_rad[1], 15.0 * M_PI / 180.0, 1e-12);
   EXPECT_NEAR(m.pennation_rad[2], 30.0 * M_PI / 180.0, 1e-12);
   EXPECT_NEAR(m.length_m[2], 0.04, 1e-15);
+}
+
+// calc_fibre_metrics finds each segment midpoint's closest line point with pruning; the result
+// must be bit-identical to the plain scan (find_closest_line_parameter), here on fibres scattered
+// around a curved action line with a kink (many near-ties between segments).
+TEST(FibreMetrics, SameBitsAsThePlainClosestPointScan) {
+  Points3 line(5, 3);
+  line << 0, 0, 0, 0.01, 0.002, 0.05, 0.0, 0.01, 0.1, -0.02, 0.0, 0.15, -0.02, 0.0, 0.2;
+  std::vector<Points3> fibres;
+  std::uint64_t state = 12345;
+  auto uniform = [&] {  // deterministic LCG in [-1, 1)
+    state = state * 6364136223846793005ULL + 1442695040888963407ULL;
+    return static_cast<double>(state >> 11) / static_cast<double>(1ULL << 52) - 1.0;
+  };
+  for (int f = 0; f < 200; ++f) {
+    Points3 P(15, 3);
+    const Vec3 a(0.03 * uniform(), 0.03 * uniform(), 0.1 + 0.1 * uniform());
+    const Vec3 d = Vec3(0.2 * uniform(), 0.2 * uniform(), 1.0).normalized() * 0.004;
+    for (int i = 0; i < 15; ++i) P.row(i) = (a + i * d + 0.0005 * Vec3(uniform(), uniform(), uniform())).transpose();
+    fibres.push_back(P);
+  }
+  const FibreMetrics m = calc_fibre_metrics(fibres, line);
+  const FramedLine framed = calc_framed_line(line, 64, calc_default_start_frame(line));
+  for (std::size_t f = 0; f < fibres.size(); ++f) {
+    const Points3& P = fibres[f];
+    double length = 0.0, angle_sum = 0.0;
+    for (Eigen::Index i = 0; i + 1 < P.rows(); ++i) {
+      const Vec3 seg = (P.row(i + 1) - P.row(i)).transpose();
+      const double l = seg.norm();
+      const Vec3 mid = 0.5 * (P.row(i) + P.row(i + 1)).transpose();
+      const Vec3 t = calc_line_point(framed, find_closest_line_parameter(framed, mid).s).frame * Vec3::UnitX();
+      angle_sum += l * std::acos(std::min(1.0, std::abs(t.dot(seg) / l)));
+      length += l;
+    }
+    EXPECT_EQ(m.length_m[static_cast<Eigen::Index>(f)], length) << f;
+    EXPECT_EQ(m.pennation_rad[static_cast<Eigen::Index>(f)], angle_sum / length) << f;
+  }
 }
 
 }  // namespace
