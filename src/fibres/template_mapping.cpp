@@ -85,6 +85,9 @@ struct TemplateMapper::Slices {
   // Cells of the template's start square (corners (r.x, r.y, 0)), weighted by the mean mapped
   // cross-section area (calc_section_samples).
   std::vector<detail::WeightedTriangle> section_cells;
+  // Candidate start parameters (section-proportional) and their images in 4 slices (x,y,z each).
+  std::vector<Vec2> candidate_r;
+  Eigen::Matrix<double, Eigen::Dynamic, 12> candidate_images;
 };
 
 TemplateMapper::~TemplateMapper() = default;
@@ -266,11 +269,41 @@ TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
           }
           slices_->section_cells.push_back(cell);
         }
+    const std::vector<detail::TriangleSample> cand = detail::sample_triangles(slices_->section_cells, 1024);
+    slices_->candidate_images.resize(cand.size(), 12);
+    for (std::size_t c = 0; c < cand.size(); ++c) {
+      const Vec2 r(cand[c].point.x(), cand[c].point.y());
+      slices_->candidate_r.push_back(r);
+      const VecX lambda = calc_mean_value_coordinates(slices_->square, Vec2::Constant(inset) + (1.0 - 2.0 * inset) * r);
+      for (int j = 0; j < 4; ++j) {
+        const int k = std::clamp((2 * j + 1) * K / 8, 0, K - 1);
+        slices_->candidate_images.block<1, 3>(c, 3 * j) = (slices_->contour[k].transpose() * lambda).transpose();
+      }
+    }
   }
   query_ = std::make_unique<MeshQuery>(muscle);
 }
 
 std::vector<Vec2> TemplateMapper::calc_section_samples(int count) const {
+  const Slices& S = *slices_;
+  const int m = static_cast<int>(S.candidate_r.size());
+  if (count >= 1 && 4 * count <= m) {
+    // Farthest-point selection among the candidates, distance over the four slices' images.
+    std::vector<Vec2> out;
+    out.reserve(count);
+    Eigen::VectorXd d2 = Eigen::VectorXd::Constant(m, std::numeric_limits<double>::infinity());
+    Eigen::Index pick = 0;
+    {
+      const Eigen::Matrix<double, 1, 12> mean = S.candidate_images.colwise().mean();
+      (S.candidate_images.rowwise() - mean).rowwise().squaredNorm().minCoeff(&pick);
+    }
+    for (int i = 0; i < count; ++i) {
+      out.push_back(S.candidate_r[pick]);
+      d2 = d2.cwiseMin((S.candidate_images.rowwise() - S.candidate_images.row(pick)).rowwise().squaredNorm());
+      d2.maxCoeff(&pick);
+    }
+    return out;
+  }
   const std::vector<detail::TriangleSample> samples =
       detail::sample_triangles(slices_->section_cells, count);
   std::vector<Vec2> out;

@@ -92,16 +92,13 @@ double find_floor(const std::string& name, FibreMethod method, const std::string
   };
   const FibreMethod T = FibreMethod::template_map, H = FibreMethod::harmonic;
   // Floors a little under the values measured on 2026-11-24 after volume seeding of the harmonic
-  // streamlines, stratified area sampling and contact-speck removal (docs/fibres.md, "Quality
-  // invariants"); 15 of the 27 earlier entries now meet the targets.
+  // streamlines, stratified area sampling, contact-speck removal and farthest-point parallel starts
+  // (docs/fibres.md, "Quality invariants"); 18 of the 27 earlier entries now meet the targets.
   static const Shortfall known[] = {
-      {"soleus", T, "coverage", 0.78},
+      {"soleus", T, "coverage", 0.83},
       {"tibialis_anterior", T, "origin_spread", 0.72},
-      {"tibialis_anterior", T, "coverage", 0.73},
+      {"tibialis_anterior", T, "coverage", 0.74},
       {"tibialis_anterior", T, "smooth", 0.50},
-      {"medial_gastrocnemius", T, "coverage", 0.91},
-      {"gluteus_medius", T, "coverage", 0.91},
-      {"bolsterlee_TA", T, "coverage", 0.92},
       {"soleus", H, "origin_spread", 0.76},
       {"tibialis_anterior", H, "origin_spread", 0.74},
       {"tibialis_anterior", H, "insertion_spread", 0.48},

@@ -66,11 +66,14 @@ class TemplateMapper {
 
   // `count` start parameters r in [0, 1]^2 for the parallel template (make_template_fibres with
   // starts; the fibre sits at 0.02 + 0.96 r in the unit square), spread in proportion to the
-  // muscle cross-section they map to: the square is split into 16 x 16 cells (two triangles
-  // each), each weighted by the mean over the slices of the area its mean value coordinate image
-  // covers, and sampled with the stratified R2 rule of the attachment areas. The R2 sequence
-  // itself is uniform in the square, which the map stretches unevenly (crescent-shaped sections
-  // leave sparse, uncovered horns).
+  // muscle cross-section they map to, and evenly spaced there: the square is split into 16 x 16
+  // cells (two triangles each), each weighted by the mean over the slices of the area its mean
+  // value coordinate image covers; 1024 candidates are sampled from the cells with the stratified
+  // R2 rule of the attachment areas (set-up), and `count` of them are chosen by farthest-point
+  // selection, the distance being that of their images in four slices (at 1/8, 3/8, 5/8, 7/8 of
+  // the axis), starting from the candidate nearest the mean image. For count > 256 the stratified
+  // sample itself. The R2 sequence is uniform in the square, which the map stretches unevenly
+  // (crescent-shaped sections leave sparse horns), and is not evenly spaced at the periphery.
   std::vector<Vec2> calc_section_samples(int count) const;
 
   // Maps unit-cube fibres into the muscle (metres, mesh frame), re-routing end-to-end templates'
