@@ -85,9 +85,10 @@ struct TemplateMapper::Slices {
   // Cells of the template's start square (corners (r.x, r.y, 0)), weighted by the mean mapped
   // cross-section area (calc_section_samples).
   std::vector<detail::WeightedTriangle> section_cells;
-  // Candidate start parameters (section-proportional) and their images in 4 slices (x,y,z each).
+  // Candidate start parameters (section-proportional), and the first quarter of them in
+  // farthest-point order (a prefix of that order is the farthest-point selection of any size).
   std::vector<Vec2> candidate_r;
-  Eigen::Matrix<double, Eigen::Dynamic, 12> candidate_images;
+  std::vector<Vec2> farthest_first;
 };
 
 TemplateMapper::~TemplateMapper() = default;
@@ -269,15 +270,31 @@ TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
           }
           slices_->section_cells.push_back(cell);
         }
-    const std::vector<detail::TriangleSample> cand = detail::sample_triangles(slices_->section_cells, 1024);
-    slices_->candidate_images.resize(cand.size(), 12);
-    for (std::size_t c = 0; c < cand.size(); ++c) {
+    // Candidates and their images in four slices (1/8, 3/8, 5/8, 7/8 of the axis), one column
+    // of 12 coordinates each; farthest-point order of the first quarter.
+    const std::vector<detail::TriangleSample> cand =
+        detail::sample_triangles(slices_->section_cells, 1024);
+    const Eigen::Index m = static_cast<Eigen::Index>(cand.size());
+    Eigen::Matrix<double, 12, Eigen::Dynamic> image(12, m);
+    for (Eigen::Index c = 0; c < m; ++c) {
       const Vec2 r(cand[c].point.x(), cand[c].point.y());
       slices_->candidate_r.push_back(r);
-      const VecX lambda = calc_mean_value_coordinates(slices_->square, Vec2::Constant(inset) + (1.0 - 2.0 * inset) * r);
+      const VecX lambda = calc_mean_value_coordinates(
+          slices_->square, Vec2::Constant(inset) + (1.0 - 2.0 * inset) * r);
       for (int j = 0; j < 4; ++j) {
         const int k = std::clamp((2 * j + 1) * K / 8, 0, K - 1);
-        slices_->candidate_images.block<1, 3>(c, 3 * j) = (slices_->contour[k].transpose() * lambda).transpose();
+        image.block<3, 1>(3 * j, c) = slices_->contour[k].transpose() * lambda;
+      }
+    }
+    if (m > 0) {
+      VecX d2 = VecX::Constant(m, std::numeric_limits<double>::infinity());
+      Eigen::Index pick = 0;
+      const Eigen::Matrix<double, 12, 1> mean = image.rowwise().mean();
+      (image.colwise() - mean).colwise().squaredNorm().minCoeff(&pick);
+      for (Eigen::Index i = 0; i < m / 4; ++i) {
+        slices_->farthest_first.push_back(slices_->candidate_r[pick]);
+        d2 = d2.cwiseMin((image.colwise() - image.col(pick)).colwise().squaredNorm().transpose());
+        d2.maxCoeff(&pick);
       }
     }
   }
@@ -286,24 +303,8 @@ TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
 
 std::vector<Vec2> TemplateMapper::calc_section_samples(int count) const {
   const Slices& S = *slices_;
-  const int m = static_cast<int>(S.candidate_r.size());
-  if (count >= 1 && 4 * count <= m) {
-    // Farthest-point selection among the candidates, distance over the four slices' images.
-    std::vector<Vec2> out;
-    out.reserve(count);
-    Eigen::VectorXd d2 = Eigen::VectorXd::Constant(m, std::numeric_limits<double>::infinity());
-    Eigen::Index pick = 0;
-    {
-      const Eigen::Matrix<double, 1, 12> mean = S.candidate_images.colwise().mean();
-      (S.candidate_images.rowwise() - mean).rowwise().squaredNorm().minCoeff(&pick);
-    }
-    for (int i = 0; i < count; ++i) {
-      out.push_back(S.candidate_r[pick]);
-      d2 = d2.cwiseMin((S.candidate_images.rowwise() - S.candidate_images.row(pick)).rowwise().squaredNorm());
-      d2.maxCoeff(&pick);
-    }
-    return out;
-  }
+  if (count >= 1 && count <= static_cast<int>(S.farthest_first.size()))
+    return {S.farthest_first.begin(), S.farthest_first.begin() + count};
   const std::vector<detail::TriangleSample> samples =
       detail::sample_triangles(slices_->section_cells, count);
   std::vector<Vec2> out;
