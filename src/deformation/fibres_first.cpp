@@ -53,9 +53,10 @@ Points3 calc_particle_volume_gradient(const FibreBundle& m, const SurfaceMap& W,
 
 // Moves the muscle's particles xm (muscle-local rows) to xm + t Y with t the root of the cubic
 // V(t) = V0 nearest to the linearised one (the exact volume along the line). Returns t (NaN: none).
-double hold_volume_along(const FibreBundle& m, const SurfaceMap& W, Points3& xm, const Points3& Y) {
+// Sy = W Y: the direction's surface image (kept with Y, which changes once per contact round).
+double hold_volume_along(const FibreBundle& m, const SurfaceMap& W, Points3& xm, const Points3& Y,
+                         const Points3& Sy) {
   const Points3 Sx = W * xm;
-  const Points3 Sy = W * Y;
   const Vec3 centre = Sx.colwise().mean().transpose();
   const double t = solve_volume_cubic(calc_volume_cubic(Sx, Sy, m.surface_triangles, centre),
                                       m.rest_volume_m3);
@@ -241,6 +242,7 @@ struct MuscleSystem {
   Points3 volume_direction;
   // display-surface vertices = surface_map * (the muscle's particle rows)
   SurfaceMap surface_map;
+  Points3 volume_direction_surface;  // surface_map * volume_direction
 };
 
 struct MusclePair {
@@ -657,8 +659,9 @@ double relax_muscle(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
   if (fresh) {
     sys.volume_direction = Points3::Zero(m.num_particles, 3);
     for (int j = 0; j < nf; ++j) sys.volume_direction.row(m.free[j] - base) = -B.row(j).tail<3>();
+    sys.volume_direction_surface = sys.surface_map * sys.volume_direction;
   }
-  if (volume) volume_failed = !std::isfinite(hold_volume_along(m, sys.surface_map, xm, sys.volume_direction));
+  if (volume) volume_failed = !std::isfinite(hold_volume_along(m, sys.surface_map, xm, sys.volume_direction, sys.volume_direction_surface));
   double largest2 = 0.0;
   sys.plain.resize(nf, 3);
   Eigen::MatrixXd current(nf, 3);
@@ -747,11 +750,12 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
       for (int q = 0; q < m.num_particles; ++q)
         if (held[m.first_particle + q]) Y.row(q).setZero();
       Points3 xm = x.middleRows(m.first_particle, m.num_particles);
+      const Points3 SY = sys.surface_map * Y;
       for (int k = 0; k < std::max(1, o.max_volume_iterations); ++k) {
         const double V = surface_volume(m, sys.surface_map * xm);
         if (std::abs(V - m.rest_volume_m3) <= 1e-12 * m.rest_volume_m3) break;
         ++info.volume_iterations;
-        if (!std::isfinite(hold_volume_along(m, sys.surface_map, xm, Y))) break;
+        if (!std::isfinite(hold_volume_along(m, sys.surface_map, xm, Y, SY))) break;
         x.middleRows(m.first_particle, m.num_particles) = xm;
       }
     }

@@ -442,7 +442,7 @@ TEST(FibresFirst, LoftSurfaceFollowsAConcaveRestSurface) {
   FibresFirstSolver solver(model);
   solver.calc_frame({});
   const TriMesh rest_surface{solver.get_muscles()[0].surface_vertices, m.surface_triangles};
-  EXPECT_EQ(rest_surface.V.rows(), 16 * 24);
+  EXPECT_EQ(rest_surface.V.rows(), model.options.surface_rings * model.options.surface_ring_points);
   EXPECT_TRUE(calc_self_intersections(rest_surface).empty());
   // vertices at rest lie on the crescent's surface
   const MeshQuery crescent(spec.rest_surface);

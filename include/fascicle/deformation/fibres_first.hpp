@@ -93,8 +93,8 @@ struct FibresFirstOptions {
   double muscle_contact_band = 0.0;
   // Loft display surface (muscles whose spec gives a rest surface): contours along the rest
   // surface's principal axis and points per contour.
-  int surface_rings = 16;
-  int surface_ring_points = 24;
+  int surface_rings = 12;
+  int surface_ring_points = 20;
   // Skin of the muscle-pair candidate list (a Verlet list): candidates are the contact-particle
   // pairs closer than muscle_margin_m + this when the list is built, and the list is rebuilt
   // only once a contact particle has moved more than half of it. Larger: fewer rebuilds, more
