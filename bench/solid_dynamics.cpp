@@ -347,7 +347,8 @@ BENCHMARK(BM_SoleusContraction)->Arg(0)->Arg(20)->Iterations(1)->Unit(benchmark:
 void BM_SoleusContractionVariant(benchmark::State& state) {
   run_soleus(state, static_cast<int>(state.range(0)), static_cast<int>(state.range(1)));
 }
-BENCHMARK(BM_SoleusContractionVariant)->Args({20, 1})->Args({20, 3})->Args({20, 5})->Args({20, 2})->Iterations(1)->Unit(benchmark::kSecond);
+BENCHMARK(BM_SoleusContractionVariant)->Args({20, 1})->Args({20, 3})->Args({20, 5})->Args({20, 2})
+    ->Args({20, 512})->Args({20, 513})->Args({20, 1280})->Args({20, 1281})->Iterations(1)->Unit(benchmark::kSecond);
 
 }  // namespace
 
