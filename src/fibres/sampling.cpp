@@ -40,7 +40,8 @@ std::vector<TriangleSample> sample_triangles(const std::vector<WeightedTriangle>
   const auto [lo1, hi1] = std::minmax_element(s1.begin(), s1.end());
   const double w1 = std::max(*hi1 - *lo1, 1e-300), w2 = *hi2 - *lo2;
   // Strips across e2: m strips of count / m samples each have about square cells.
-  const int strips = std::clamp(static_cast<int>(std::lround(std::sqrt(count * w2 / w1))), 1, count);
+  const double ratio = std::min(std::sqrt(count * w2 / w1), static_cast<double>(count));
+  const int strips = std::clamp(static_cast<int>(std::lround(ratio)), 1, count);
   std::vector<int> strip(n);
   for (std::size_t i = 0; i < n; ++i)
     strip[i] = w2 > 0.0 ? std::clamp(static_cast<int>((s2[i] - *lo2) / w2 * strips), 0, strips - 1)
