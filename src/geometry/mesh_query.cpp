@@ -164,10 +164,12 @@ struct MeshQuery::Bvh {
   RTCScene scene = nullptr;
   RTCGeometry geometry = nullptr;  // the clusters (owned by the scene)
   bool refittable = false;         // two-level scene whose commits refit (see build_scene)
-  // Triangles are stored in Morton order of their centroids ("slots"), so that triangles near in
-  // space are near in memory. Embree primitives are clusters of kCluster consecutive slots: one
-  // callback screens the whole cluster with a vectorised lower bound (calc_lower_bounds) and runs
-  // the exact test only on the few survivors. Fewer, larger primitives also mean a smaller tree.
+  // Triangles are stored in "slots" so that triangles near in space are near in memory: in the
+  // depth-first leaf order of the compact tree (default), or in Morton order of their centroids
+  // (embree_clusters). Clusters are runs of at most kCluster consecutive slots (the compact tree's
+  // leaves, or Morton runs of kCluster): one screen (find_candidates) bounds the whole cluster
+  // vectorised and the exact test runs only on the few survivors. The Embree scene's primitives
+  // are the clusters too (rays, inside tests, and closest points with embree_clusters).
   static constexpr unsigned kCluster = 16;
   // Per cluster, kSoaRows rows of kCluster floats (structure of arrays): the triangle's bounding
   // disc (centre x, y, z relative to the cluster's anchor; unit plane normal x, y, z, zero for
