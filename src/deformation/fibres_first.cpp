@@ -94,6 +94,8 @@ class LdlFactor {
   LdlFactor(const LdlFactor&) = delete;
   LdlFactor& operator=(const LdlFactor&) = delete;
 
+  bool is_analysed() const { return L_ != nullptr; }
+
   // K: symmetric, lower triangle stored, compressed. False when not positive definite.
   bool factorise(SparseMatrix& K) {
     cholmod_sparse A{};
@@ -519,7 +521,10 @@ void update_factors(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
   }
   std::vector<char> failed(nm, 0);
   std::vector<char> refactorised(nm, 0);
-  parallel_for(refactor.size(), [&](std::size_t r) {
+  // The first factorisation of a muscle also computes its fill-reducing ordering; METIS draws
+  // from a random-number state shared by all threads (GKlib), so concurrent orderings depend on
+  // timing. Those muscles are factorised one after another, the others in parallel.
+  auto refactorise = [&](std::size_t r) {
     const int mi = refactor[r];
     MuscleSystem& sys = *ws.systems[mi];
     const double mass_term = model.muscles[mi].particle_mass_kg * ctx.mass_scale;
@@ -547,7 +552,13 @@ void update_factors(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
     sys.modifications = 0;
     sys.factored_weight = sys.weight;
     sys.factored_mass_term = mass_term;
-  });
+  };
+  for (std::size_t r = 0; r < refactor.size(); ++r)
+    if (!ws.systems[refactor[r]]->factor.is_analysed()) refactorise(r);
+  std::vector<std::size_t> analysed;
+  for (std::size_t r = 0; r < refactor.size(); ++r)
+    if (refactorised[refactor[r]] == 0) analysed.push_back(r);
+  parallel_for(analysed.size(), [&](std::size_t k) { refactorise(analysed[k]); });
   for (int mi = 0; mi < nm; ++mi) info.factorisations += refactorised[mi];
   info.factor_updates += static_cast<int>(refactor.size()) - static_cast<int>(
       std::count(refactorised.begin(), refactorised.end(), 1));
