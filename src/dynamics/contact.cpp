@@ -27,7 +27,9 @@ void push_out(const SolidDynamicsModel& from, const Points3& P_from, const Solid
   s_into.P = P_into;
   BoundaryTessellation t_from = make_boundary_tessellation(s_from, samples);
   const BoundaryTessellation t_into = make_boundary_tessellation(s_into, samples * 2);
-  const MeshQuery surface(t_into.mesh);
+  // Built for a handful of closest points per call: the cheaper-to-build tree wins here.
+  const MeshQuery surface(
+      t_into.mesh, MeshQueryOptions{MeshQueryOptions::ClosestPointTree::embree_clusters});
   const SolidLocator locator(s_into);
   // Cheap rejection: samples outside into's control-point box cannot be inside.
   const Vec3 lo = P_into.colwise().minCoeff(), hi = P_into.colwise().maxCoeff();
