@@ -606,7 +606,6 @@ double relax_muscle(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
                     bool first_iteration, const Points3& snapshot, Points3& x, char& volume_failed) {
   const FibresFirstModel& model = ctx.model;
   const FibresFirstOptions& o = model.options;
-  const int P = o.particles_per_fibre;
   const std::vector<Transform>& motions = ctx.motions;
   const FibreBundle& m = model.muscles[mi];
   MuscleSystem& sys = *ws.systems[mi];
@@ -701,7 +700,6 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
                    FibresFirstInfo& info) {
   const FibresFirstModel& model = ctx.model;
   const FibresFirstOptions& o = model.options;
-  const int P = o.particles_per_fibre;
   const int N = model.num_particles();
   const int nm = static_cast<int>(model.muscles.size());
   const std::vector<Transform>& motions = ctx.motions;
