@@ -402,6 +402,7 @@ struct PointQueryState {
   TrianglePoint best;
   double radius_pad;  // absolute padding for the float rounding of the query point
   double margin;      // absolute margin for the rounding of the lower bounds (calc_lower_bounds)
+  int seed_vertex = -1;  // compact tree: the vertex whose distance seeded best_d2 (no slot chosen)
 };
 
 // Embree's radius: the exact distance, rounded up and padded so float culling stays conservative.
@@ -461,12 +462,18 @@ void seed_from_vertex(PointQueryState* q, unsigned v) {
   v = descend(bvh, q->p, v);
   if (bvh.compact) {
     // The compact traversal visits the nearest leaves first and so tests the triangles around v
-    // anyway: seed only the bound. The vertex lies on the surface, so its distance (widened
-    // against rounding) is an upper bound of the answer; no triangle is chosen yet.
-    const double d2 = bvh.vertex_distance2(v, q->p) * (1.0 + 1e-12);
+    // anyway: seed only the bound. The vertex lies on the surface, so its distance is an upper
+    // bound of the exact answer; no triangle is chosen yet. The nearest triangle's *computed*
+    // distance may exceed the vertex distance by rounding (p almost straight above v, where the
+    // closest point is not returned as the vertex itself), and test_slot only accepts distances
+    // below the bound, so the bound is widened by the absolute rounding margin, not only
+    // relatively; closest_with_hint still tests v's triangles if nothing was accepted.
+    const double d = std::sqrt(bvh.vertex_distance2(v, q->p)) + q->margin;
+    const double d2 = d * d * (1.0 + 1e-12);
     if (d2 < q->best_d2) {
       q->best_d2 = d2;
       q->best_limit = std::sqrt(d2) * (1.0 + 1e-12);
+      q->seed_vertex = static_cast<int>(v);
     }
     return;
   }
@@ -1503,6 +1510,14 @@ ClosestPoint MeshQuery::closest_with_hint(const Vec3& p, int hint_triangle,
     rtcPointQuery(bvh_->scene, &query, &context, point_query_callback, &q);
   }
 
+  if (q.best_slot < 0 && q.seed_vertex >= 0) {
+    // Nothing beat the seeded vertex bound (possible only through rounding): the answer is then
+    // among the triangles around that vertex, whose exact distance is at most the bound.
+    q.best_d2 = max_distance * max_distance;
+    const auto v = static_cast<unsigned>(q.seed_vertex);
+    for (unsigned k = bvh_->ring_start[v]; k < bvh_->ring_start[v + 1]; ++k)
+      test_slot(&q, bvh_->ring_slots[k]);
+  }
   ClosestPoint out;
   if (q.best_slot < 0) return out;
   out.point = q.best.point;

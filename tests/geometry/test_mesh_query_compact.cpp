@@ -281,6 +281,67 @@ TEST(MeshQueryCompact, UpdateVerticesEqualsFreshBuild) {
   check_refit(make_ellipsoid(Vec3(0.03, 0.02, 0.12), 4), {0.1, 0.5, 1.0, 0.0}, 100, 23, kClusters);
 }
 
+// An open grid surface z = curvature (x^2 - y^2) (a plane when curvature = 0), tilted and placed
+// about half a metre from the origin, with `n` x `n` vertices 2 mm apart.
+TriMesh make_tilted_grid(int n, double curvature) {
+  TriMesh m;
+  m.V.resize(static_cast<Eigen::Index>(n) * n, 3);
+  const Mat3 R = (Eigen::AngleAxisd(0.7, Vec3(1, 2, 3).normalized())).toRotationMatrix();
+  const Vec3 origin(0.5, 0.31, 0.43);
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < n; ++j) {
+      const double x = 0.002 * (i - n / 2), y = 0.002 * (j - n / 2);
+      m.V.row(i * n + j) = (origin + R * Vec3(x, y, curvature * (x * x - y * y))).transpose();
+    }
+  m.F.resize(2 * (n - 1) * (n - 1), 3);
+  Eigen::Index f = 0;
+  for (int i = 0; i + 1 < n; ++i)
+    for (int j = 0; j + 1 < n; ++j) {
+      const int a = i * n + j, b = a + 1, c = a + n, d = c + 1;
+      m.F.row(f++) << a, c, b;
+      m.F.row(f++) << b, c, d;
+    }
+  return m;
+}
+
+// Points almost straight above a vertex (h = 1e-9 ... 1e-4 m along the vertex normal, coordinates
+// about 0.5 m): the nearest triangle's computed distance can exceed the vertex distance by
+// rounding, which once let the compact tree's seeded bound reject every triangle (no answer).
+TEST(MeshQueryCompact, PointsJustAboveAVertexFindTheirTriangle) {
+  for (const double curvature : {0.0, 20.0, -35.0}) {
+    const TriMesh grid = make_tilted_grid(24, curvature);
+    const MeshQuery compact(grid, kCompact), clusters(grid, kClusters);
+    std::mt19937_64 rng(7);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    int checked = 0;
+    for (Eigen::Index v = 0; v < grid.V.rows(); v += 7) {
+      // Vertex normal: the sum of the incident triangles' area normals.
+      Vec3 normal = Vec3::Zero();
+      for (Eigen::Index f = 0; f < grid.F.rows(); ++f)
+        for (int k = 0; k < 3; ++k)
+          if (grid.F(f, k) == v)
+            normal += (vertex(grid, f, 1) - vertex(grid, f, 0)).cross(vertex(grid, f, 2) - vertex(grid, f, 0));
+      normal.normalize();
+      for (const double h : {1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4}) {
+        for (const double side : {1.0, -1.0}) {
+          Vec3 p = grid.V.row(v).transpose() + side * h * normal;
+          if (checked % 3 == 0) p += 1e-12 * Vec3(u(rng), u(rng), u(rng));
+          const ClosestPoint c = compact.calc_closest_point(p);
+          const ClosestPoint e = clusters.calc_closest_point(p);
+          const ClosestPoint bf = brute_closest(grid, p);
+          ASSERT_GE(c.triangle, 0) << "curvature " << curvature << " vertex " << v << " h " << h;
+          ASSERT_EQ(c.triangle, bf.triangle) << "curvature " << curvature << " vertex " << v << " h " << h;
+          ASSERT_EQ(c.point, bf.point) << "curvature " << curvature << " vertex " << v << " h " << h;
+          ASSERT_EQ(c.triangle, e.triangle) << "curvature " << curvature << " vertex " << v << " h " << h;
+          ASSERT_LE(c.distance, h * (1.0 + 1e-6) + 2e-12);  // jitter <= sqrt(3) 1e-12
+          ++checked;
+        }
+      }
+    }
+    EXPECT_GT(checked, 900);
+  }
+}
+
 TEST(MeshQueryCompact, DefaultIsTheCompactTree) {
   EXPECT_EQ(MeshQueryOptions{}.closest_point_tree, MeshQueryOptions::ClosestPointTree::compact);
 }
