@@ -37,4 +37,9 @@ int max_threads() {
       tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
 }
 
+std::mutex& get_ordering_mutex() {
+  static std::mutex mutex;
+  return mutex;
+}
+
 }  // namespace fascicle

@@ -111,7 +111,10 @@ class LdlFactor {
     A.sorted = 1;
     A.packed = 1;
     if (!L_) {
-      L_ = cholmod_analyze(&A, &c_);
+      {
+        const std::lock_guard lock(get_ordering_mutex());  // AMD or METIS (shared GKlib state)
+        L_ = cholmod_analyze(&A, &c_);
+      }
       if (!L_) return false;
       const int* perm = static_cast<const int*>(L_->Perm);
       position_.resize(K.rows());

@@ -275,7 +275,10 @@ struct SparseCholesky {
   void analyse(const SparseMatrix& K) {
     use_single_threaded_cholmod();
     cholmod.cholmod().print = 0;  // failures are reported by the caller, not printed by CHOLMOD
-    if (kind == SparseSolverKind::cholmod_supernodal) cholmod.analyzePattern(K);
+    if (kind == SparseSolverKind::cholmod_supernodal) {
+      const std::lock_guard lock(get_ordering_mutex());  // CHOLMOD may order with METIS
+      cholmod.analyzePattern(K);
+    }
     else ldlt.analyzePattern(K);
   }
   bool factorise(const SparseMatrix& K) {

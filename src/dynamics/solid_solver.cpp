@@ -3,6 +3,7 @@
 // LDLᵀ solve (volume penalty as a rank-one Sherman–Morrison update), a quasi-static mode, step
 // halving on failure and the exact volume projection per step (§4.4).
 #include "fascicle/core/error.hpp"
+#include "fascicle/core/parallel.hpp"
 #include "internal.hpp"
 
 #include <Eigen/SparseCholesky>
@@ -76,7 +77,11 @@ class FreeBlockCholesky {
     build(identity);
     // CHOLMOD's own choice of ordering (AMD or METIS, postordered) on the free block.
     cholmod_sparse S0 = get_view();
-    cholmod_factor* L0 = cholmod_analyze(&S0, &c_);
+    cholmod_factor* L0 = nullptr;
+    {
+      const std::lock_guard lock(get_ordering_mutex());  // the ordering may be METIS's
+      L0 = cholmod_analyze(&S0, &c_);
+    }
     if (!L0) throw_internal("CHOLMOD could not analyse the backward-Euler matrix");
     std::vector<int> perm(static_cast<const int*>(L0->Perm), static_cast<const int*>(L0->Perm) + nf_);
     cholmod_free_factor(&L0, &c_);

@@ -123,7 +123,12 @@ VecX solve_laplace(const TetMesh& mesh, const std::vector<int>& zero_vertices,
   if (nf == 0) return u;
   Eigen::SparseMatrix<double> A(nf, nf);
   A.setFromTriplets(trips.begin(), trips.end());
-  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>, Eigen::Lower> solver(A);
+  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>, Eigen::Lower> solver;
+  {
+    const std::lock_guard lock(get_ordering_mutex());  // CHOLMOD may order with METIS
+    solver.analyzePattern(A);
+  }
+  solver.factorize(A);
   if (solver.info() != Eigen::Success)
     throw_numerical("sparse Cholesky factorisation of the Laplace system failed",
                     {.suggestion = "the tetrahedral mesh may have a part without an attachment "

@@ -6,6 +6,7 @@
 #include <cstddef>
 #include <functional>
 #include <memory>
+#include <mutex>
 
 namespace fascicle {
 
@@ -37,5 +38,12 @@ int max_threads();
 // first call. (OpenBLAS's *serial* build is not safe to call from several threads at once: results
 // then differ run to run — use the pthread build.)
 void use_single_threaded_blas();
+
+// Held around every sparse symbolic analysis that may choose a METIS ordering (cholmod_analyze,
+// Eigen's Cholmod*::analyzePattern): METIS draws from a random-number state that GKlib shares
+// between all threads, so two analyses at once race on it and their orderings (and every result
+// after them) depend on timing. The one process-wide lock guards that library state; the
+// numeric factorisations and solves stay parallel.
+std::mutex& get_ordering_mutex();
 
 }  // namespace fascicle
