@@ -181,7 +181,8 @@ DriverResult run_frames(const Model& model, const CoordinateTrajectory& traj, co
     // written when a solve failed is completed first, so every frame before the failure is on disk
     try {
       wait_writing();
-    } catch (const Error&) {
+    } catch (...) {
+      // a second failure (of any kind) while finishing the frame before: the first is reported
     }
     if (bar) bar->finish();
     for (FrameWriter* w : writers) w->finish(model);

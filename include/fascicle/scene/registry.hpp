@@ -101,6 +101,10 @@ struct RunInfo {
   int num_frames = 0;
   double frame_rate_hz = 0.0;
 };
+// write_frame runs on a worker thread beside the solves of the next frame (run_frames pipelines
+// frames), one frame at a time and in frame order. Its State holds that frame's time, coordinates,
+// activations, body poses, muscles and overlaps (stage geometry); it has no skeleton state and no
+// representation states, which belong to the solver and have already moved on.
 class FrameWriter {
  public:
   virtual ~FrameWriter() = default;
