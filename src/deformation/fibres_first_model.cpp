@@ -594,9 +594,10 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
       const Vec3 u = axis.unitOrthogonal(), v = axis.cross(u);
       std::vector<Vec2> section(m.num_fibres);
       for (int f = 0; f < m.num_fibres; ++f) section[f] = Vec2(mid.row(f).dot(u), mid.row(f).dot(v));
-      if (!loft) m.boundary_fibres = calc_convex_hull(section);
-      // contact fibres: the boundary fibres, and those within muscle_contact_band x the mean
-      // nearest-fibre spacing of the hull's edges (tube) or of a boundary fibre (loft)
+      m.boundary_fibres = calc_convex_hull(section);
+      // contact fibres (tube surface; a loft sets its own in build_loft_surface): the boundary
+      // fibres, and those within muscle_contact_band x the mean nearest-fibre spacing of the
+      // hull's edges
       std::vector<char> near(m.num_fibres, 0);
       for (int f : m.boundary_fibres) near[f] = 1;
       const int nb = static_cast<int>(m.boundary_fibres.size());
@@ -611,7 +612,7 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
         for (int f = 0; f < m.num_fibres; ++f)
           for (int k = 0; k < nb && !near[f]; ++k) {
             const Vec2 a = section[m.boundary_fibres[k]];
-            const Vec2 b = loft ? a : section[m.boundary_fibres[(k + 1) % nb]];
+            const Vec2 b = section[m.boundary_fibres[(k + 1) % nb]];
             const double t = std::clamp((section[f] - a).dot(b - a) / std::max((b - a).squaredNorm(), 1e-300), 0.0, 1.0);
             if ((section[f] - (a + t * (b - a))).norm() <= options.muscle_contact_band * spacing)
               near[f] = 1;

@@ -89,7 +89,8 @@ struct FibresFirstOptions {
   double muscle_margin_m = 2e-3;
   // Fibres taking part in muscle-muscle separation: the cross-section's convex hull (0), or also
   // those within this many mean fibre spacings of the hull's edges (1: about one more layer;
-  // on the VH shank 5x the pairs and about 1.5x the time per frame).
+  // on the VH shank 5x the pairs and about 1.5x the time per frame). Tube display surfaces only:
+  // with a loft surface the contact particles are those nearest to its vertices.
   double muscle_contact_band = 0.0;
   // Loft display surface (muscles whose spec gives a rest surface): contours along the rest
   // surface's principal axis and points per contour.
@@ -148,9 +149,10 @@ struct FibreBundle {
   std::vector<int> surface_weight_start;
   std::vector<int> surface_weight_particle;
   std::vector<double> surface_weight;
-  // Particles kept apart from other muscles: those of the boundary fibres and of the fibres
-  // within options.muscle_contact_band x the mean nearest-fibre spacing of the hull's edges
-  // (tube) or of a boundary fibre (loft), measured in the rest mid-section
+  // Particles kept apart from other muscles. Tube surface: those of the boundary fibres and of
+  // the fibres within options.muscle_contact_band x the mean nearest-fibre spacing of the hull's
+  // edges, measured in the rest mid-section. Loft surface: the particles nearest to the surface
+  // vertices (muscle_contact_band is not used)
   std::vector<int> contact_particles;
   Triangles surface_triangles;
   int num_surface_vertices() const { return static_cast<int>(surface_weight_start.size()) - 1; }
