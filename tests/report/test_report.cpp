@@ -229,7 +229,9 @@ TEST(ReportWriter, FrameFilesMatchTheStateAndTheReportEmbedsTheRun) {
   for (int m = 0; m < model.num_muscles(); ++m) {
     const Points3& surface = states[2].surfaces[m];
     ASSERT_EQ(f.muscles[m].surface.rows(), surface.rows());
-    if (surface.rows()) EXPECT_LT((f.muscles[m].surface - surface).cwiseAbs().maxCoeff(), 1e-6);
+    if (surface.rows()) {
+      EXPECT_LT((f.muscles[m].surface - surface).cwiseAbs().maxCoeff(), 1e-6);
+    }
     EXPECT_EQ(f.muscles[m].fibres.size(), states[2].num_fibres[m]);
   }
 
