@@ -562,15 +562,7 @@ FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea&
     });
   } else {
     // The tet behind each origin triangle (its boundary face), found through the face keys.
-    std::vector<std::pair<std::array<int, 3>, int>> boundary;
-    for (Eigen::Index t = 0; t < m.num_tets(); ++t)
-      for (int c = 0; c < 4; ++c)
-        if (m.neighbours(t, c) < 0) {
-          std::array<int, 3> k{m.T(t, (c + 1) % 4), m.T(t, (c + 2) % 4), m.T(t, (c + 3) % 4)};
-          std::sort(k.begin(), k.end());
-          boundary.emplace_back(k, static_cast<int>(t));
-        }
-    std::sort(boundary.begin(), boundary.end());
+    const FaceKeys boundary = calc_boundary_faces(m);
     // Seeds: area-weighted R2 samples over the origin triangles in their mesh order (unchanged
     // since the pennate fields' validation; the stratified rule of sampling.hpp moves the VH TA's
     // pennate-field mean length from 0.83 to 0.74 of Ward's).
@@ -586,24 +578,13 @@ FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea&
     parallel_for(static_cast<std::size_t>(options.count), [&](std::size_t i) {
       const Vec2 r = get_r2_point(static_cast<int>(i));
       const double target = r.x() * total;
-      const std::size_t k = std::min<std::size_t>(
-          std::lower_bound(cumulative.begin(), cumulative.end(), target) - cumulative.begin(),
-          cumulative.size() - 1);
-      const double lo = k == 0 ? 0.0 : cumulative[k - 1];
-      const double s = std::clamp((target - lo) / std::max(cumulative[k] - lo, 1e-300), 0.0, 1.0);
+      const auto [k, s] = detail::pick_cumulative(cumulative, target);
       const int f = origin.triangles[k];
       const Vec3 a = S.V.row(S.F(f, 0)), b = S.V.row(S.F(f, 1)), c = S.V.row(S.F(f, 2));
       const double q = std::sqrt(s);
       const Vec3 p_surface = (1.0 - q) * a + q * (1.0 - r.y()) * b + q * r.y() * c;
-      std::array<int, 3> key{S.F(f, 0), S.F(f, 1), S.F(f, 2)};
-      std::sort(key.begin(), key.end());
-      const auto it = std::lower_bound(
-          boundary.begin(), boundary.end(), key,
-          [](const std::pair<std::array<int, 3>, int>& e, const std::array<int, 3>& k2) {
-            return e.first < k2;
-          });
-      if (it == boundary.end() || it->first != key) return;  // not a boundary face (cannot happen with -Y)
-      const int tet = it->second;
+      const int tet = find_boundary_tet(boundary, S, f);
+      if (tet < 0) return;  // not a boundary face (cannot happen with -Y)
       // Start just inside, along the inward normal of the surface triangle.
       const Vec3 inward = -(b - a).cross(c - a).normalized();
       const Vec3 seed = p_surface + 1e-3 * edge * inward;

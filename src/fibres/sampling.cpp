@@ -12,6 +12,15 @@
 
 namespace fascicle::detail {
 
+CumulativePick pick_cumulative(const std::vector<double>& cumulative, double target) {
+  const std::size_t k = std::min<std::size_t>(
+      static_cast<std::size_t>(std::lower_bound(cumulative.begin(), cumulative.end(), target) -
+                               cumulative.begin()),
+      cumulative.size() - 1);
+  const double lo = k == 0 ? 0.0 : cumulative[k - 1];
+  return {k, std::clamp((target - lo) / std::max(cumulative[k] - lo, 1e-300), 0.0, 1.0)};
+}
+
 std::vector<TriangleSample> sample_triangles(const std::vector<WeightedTriangle>& tris, int count) {
   std::vector<TriangleSample> out;
   const std::size_t n = tris.size();
@@ -63,11 +72,7 @@ std::vector<TriangleSample> sample_triangles(const std::vector<WeightedTriangle>
   for (int i = 0; i < count; ++i) {
     const Vec2 r = get_r2_point(i);
     const double target = r.x() * total;
-    const std::size_t k = std::min<std::size_t>(
-        std::lower_bound(cumulative.begin(), cumulative.end(), target) - cumulative.begin(),
-        n - 1);
-    const double lo = k == 0 ? 0.0 : cumulative[k - 1];
-    const double s = std::clamp((target - lo) / std::max(cumulative[k] - lo, 1e-300), 0.0, 1.0);
+    const auto [k, s] = pick_cumulative(cumulative, target);
     const WeightedTriangle& t = tris[order[k]];
     const double q = std::sqrt(s);
     out.push_back({(1.0 - q) * t.corner[0] + q * (1.0 - r.y()) * t.corner[1] + q * r.y() * t.corner[2],
@@ -129,11 +134,8 @@ std::vector<TetSample> sample_tets(const Points3& V, const Eigen::Matrix<int, Ei
   for (int i = 0; i < count; ++i) {
     const Vec2 r = get_r2_point(i);
     const double target = r.x() * total;
-    const std::size_t k = std::min<std::size_t>(
-        std::lower_bound(cumulative.begin(), cumulative.end(), target) - cumulative.begin(),
-        n - 1);
-    const double lo_k = k == 0 ? 0.0 : cumulative[k - 1];
-    double a = std::clamp((target - lo_k) / std::max(cumulative[k] - lo_k, 1e-300), 0.0, 1.0);
+    const auto [k, a_k] = pick_cumulative(cumulative, target);
+    double a = a_k;
     double b = r.y(), cc = std::fmod(a * 7.0 + r.y() * 3.0, 1.0);
     // Fold the unit cube onto the tet (Rocchini & Cignoni 2000).
     if (a + b > 1.0) {

@@ -5,9 +5,18 @@
 #include "fascicle/core/types.hpp"
 
 #include <array>
+#include <cstddef>
 #include <vector>
 
 namespace fascicle::detail {
+
+// Inverse-CDF pick: the interval k of the running sums `cumulative` (non-decreasing, not empty)
+// that holds `target`, and where in it target lies (a fraction in [0, 1]).
+struct CumulativePick {
+  std::size_t index = 0;
+  double fraction = 0.0;
+};
+CumulativePick pick_cumulative(const std::vector<double>& cumulative, double target);
 
 struct WeightedTriangle {
   std::array<Vec3, 3> corner;
