@@ -334,16 +334,8 @@ namespace fascicle {
 Points3 calc_area_samples(const TriMesh& muscle, const AttachmentArea& area, int count) {
   if (area.triangles.empty())
     throw_bad_input("the " + area.name + " area has no triangle", {.object = area.name});
-  std::vector<detail::WeightedTriangle> tris;
-  tris.reserve(area.triangles.size());
-  for (int f : area.triangles) {
-    detail::WeightedTriangle t;
-    for (int k = 0; k < 3; ++k) t.corner[k] = muscle.V.row(muscle.F(f, k));
-    t.weight = 0.5 * (t.corner[1] - t.corner[0]).cross(t.corner[2] - t.corner[0]).norm();
-    t.tag = f;
-    tris.push_back(t);
-  }
-  const std::vector<detail::TriangleSample> samples = detail::sample_triangles(tris, count);
+  const std::vector<detail::TriangleSample> samples = detail::sample_triangles(
+      detail::make_area_weighted(muscle.V, muscle.F, area.triangles), count);
   Points3 P(samples.size(), 3);
   for (std::size_t i = 0; i < samples.size(); ++i) P.row(i) = samples[i].point.transpose();
   return P;

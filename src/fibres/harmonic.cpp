@@ -520,14 +520,8 @@ FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea&
       const TriMesh& S = field.surface;
       for (const bool at_origin : {true, false}) {
         const AttachmentArea& area = at_origin ? origin : *insertion;
-        std::vector<detail::WeightedTriangle> tris;
-        for (int f : area.triangles) {
-          detail::WeightedTriangle t;
-          for (int k = 0; k < 3; ++k) t.corner[k] = S.V.row(S.F(f, k));
-          t.weight = 0.5 * (t.corner[1] - t.corner[0]).cross(t.corner[2] - t.corner[0]).norm();
-          t.tag = f;
-          tris.push_back(t);
-        }
+        const std::vector<detail::WeightedTriangle> tris =
+            detail::make_area_weighted(S.V, S.F, area.triangles);
         const std::vector<detail::TriangleSample> area_seeds = detail::sample_triangles(tris, per_area);
         const std::size_t first = n_volume + (at_origin ? 0 : per_area);
         parallel_for(area_seeds.size(), [&](std::size_t j) {

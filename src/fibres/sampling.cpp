@@ -12,6 +12,20 @@
 
 namespace fascicle::detail {
 
+std::vector<WeightedTriangle> make_area_weighted(const Points3& V, const Triangles& F,
+                                                 const std::vector<int>& faces) {
+  std::vector<WeightedTriangle> tris;
+  tris.reserve(faces.size());
+  for (int f : faces) {
+    WeightedTriangle t;
+    for (int k = 0; k < 3; ++k) t.corner[k] = V.row(F(f, k)).transpose();
+    t.weight = 0.5 * (t.corner[1] - t.corner[0]).cross(t.corner[2] - t.corner[0]).norm();
+    t.tag = f;
+    tris.push_back(t);
+  }
+  return tris;
+}
+
 CumulativePick pick_cumulative(const std::vector<double>& cumulative, double target) {
   const std::size_t k = std::min<std::size_t>(
       static_cast<std::size_t>(std::lower_bound(cumulative.begin(), cumulative.end(), target) -

@@ -24,6 +24,10 @@ struct WeightedTriangle {
   int tag = -1;         // caller's index (a surface face, a tet)
 };
 
+// The triangles `faces` of `mesh` weighted by their areas, tagged with their face indices.
+std::vector<WeightedTriangle> make_area_weighted(const Points3& V, const Triangles& F,
+                                                 const std::vector<int>& faces);
+
 struct TriangleSample {
   Vec3 point;
   int piece = -1;  // index into the input triangles
