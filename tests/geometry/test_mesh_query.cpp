@@ -6,6 +6,7 @@
 #include "fascicle/geometry/primitives.hpp"
 #include "fascicle/geometry/winding_number.hpp"
 
+#include "binary_stl.hpp"
 #include "test_support.hpp"
 
 #include <gtest/gtest.h>
@@ -449,34 +450,9 @@ TEST(MeshQuery, BadInputIsRejectedWithAClearError) {
   EXPECT_NEAR(q.calc_closest_point(Vec3(5, 0, 0), 4.5).distance, 4.0, 1e-15);
 }
 
-// Binary STL in millimetres -> metres. A minimal reader for this test only: test_geometry links the
-// geometry module alone (fascicle::read_mesh lives in the io module, a layer above).
-TriMesh read_binary_stl_mm(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  char header[80];
-  std::uint32_t n = 0;
-  in.read(header, 80);
-  in.read(reinterpret_cast<char*>(&n), 4);
-  TriMesh m;
-  m.V.resize(3 * n, 3);
-  m.F.resize(n, 3);
-  for (std::uint32_t t = 0; t < n && in; ++t) {
-    float rec[12];
-    std::uint16_t attr = 0;
-    in.read(reinterpret_cast<char*>(rec), sizeof rec);
-    in.read(reinterpret_cast<char*>(&attr), 2);
-    for (int k = 0; k < 3; ++k) {
-      for (int j = 0; j < 3; ++j) m.V(3 * t + k, j) = 1e-3 * static_cast<double>(rec[3 + 3 * k + j]);
-      m.F(t, k) = static_cast<int>(3 * t + k);
-    }
-  }
-  if (!in) throw std::runtime_error("truncated STL " + path.string());
-  return m;
-}
-
 TEST(MeshQuery, VisibleHumanTibiaAgainstBruteForce) {
   const TriMesh tibia =
-      read_binary_stl_mm(test::data_path("visible_human_female/right/VHF_Right_Bone_Tibia_smooth.stl"));
+      test::read_binary_stl_mm(test::data_path("visible_human_female/right/VHF_Right_Bone_Tibia_smooth.stl"));
   ASSERT_GT(tibia.F.rows(), 50000);
   check_against_brute_force(tibia, 100, 50, 41);
   // The contact case: points 0.5-5 mm off the bone along the face normal, both sides; closest
@@ -627,7 +603,7 @@ TEST(MeshQuery, UpdateVerticesRejectsADifferentMesh) {
 
 TEST(MeshQuery, UpdateVerticesOnTheVisibleHumanTibia) {
   const TriMesh tibia =
-      read_binary_stl_mm(test::data_path("visible_human_female/right/VHF_Right_Bone_Tibia_smooth.stl"));
+      test::read_binary_stl_mm(test::data_path("visible_human_female/right/VHF_Right_Bone_Tibia_smooth.stl"));
   MeshQuery query(tibia);
   TriMesh deformed = tibia;
   query.update_vertices(deform(tibia.V, 0.15));  // the first update builds the refittable tree
