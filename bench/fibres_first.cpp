@@ -48,7 +48,8 @@ Transform rotation_about(const Vec3& axis, double angle, const Vec3& centre) {
 // The shank scene: bones, their queries and the muscles' fibre specifications (set up once).
 struct Shank {
   std::vector<std::unique_ptr<MeshQuery>> bones;
-  std::vector<FibreBundleSpec> muscles;
+  std::vector<FibreBundleSpec> muscles;       // display surface: the hull tube
+  std::vector<FibreBundleSpec> loft_muscles;  // the same fibres with the segmented rest surface
   Vec3 ankle = Vec3::Zero();
   double setup_s = 0.0;
 
@@ -70,6 +71,8 @@ struct Shank {
       const TriMesh mesh = read_vh(std::string("Muscle_") + name);
       const Decomposition d = decompose_muscle(mesh, find_end_attachments(mesh), options);
       muscles.push_back({name, d.fibres.fibres, 0, 1});
+      loft_muscles.push_back(muscles.back());
+      loft_muscles.back().rest_surface = mesh;
     }
     setup_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   }
@@ -114,7 +117,9 @@ struct Worst {
   }
 };
 
-void BM_ShankFrame(benchmark::State& state) {
+// One quasi-static (or dynamic) frame per iteration while the foot swings; `loft`: the display
+// (and volume) surface is the segmented rest surface carried by the particles, as in scenes.
+void run_shank_frames(benchmark::State& state, bool loft) {
   ThreadLimit one(1);
   const Shank& s = shank();
   FibresFirstOptions o;
@@ -123,7 +128,8 @@ void BM_ShankFrame(benchmark::State& state) {
   o.max_contact_rounds = static_cast<int>(state.range(2));
   o.anderson_window = static_cast<int>(state.range(3));
   o.step_tolerance = 1e-4 * static_cast<double>(state.range(4));
-  const FibresFirstModel model = build_fibres_first_model(s.muscles, s.bone_list(), o);
+  const FibresFirstModel model =
+      build_fibres_first_model(loft ? s.loft_muscles : s.muscles, s.bone_list(), o);
   FibresFirstSolver solver(model);
   const Vec3 axis = Vec3::UnitX();  // medio-lateral in the Visible Human frame (x across the body)
   std::int64_t k = 0;
@@ -135,8 +141,12 @@ void BM_ShankFrame(benchmark::State& state) {
   }
   worst.report(state, model.num_particles());
   state.counters["setup_s"] = s.setup_s;
-  state.SetLabel(o.dynamic ? "VH shank, dynamic" : "VH shank, quasi-static");
+  state.SetLabel(std::string(o.dynamic ? "VH shank, dynamic" : "VH shank, quasi-static") +
+                 (loft ? ", loft surface" : ", hull tube"));
 }
+
+void BM_ShankFrame(benchmark::State& state) { run_shank_frames(state, false); }
+void BM_ShankFrameLoft(benchmark::State& state) { run_shank_frames(state, true); }
 // Args: dynamic, iterations per round, contact rounds, Anderson window (0: plain projective
 // dynamics), step tolerance in units of 1e-4
 BENCHMARK(BM_ShankFrame)
@@ -149,6 +159,12 @@ BENCHMARK(BM_ShankFrame)
     ->Args({1, 10, 2, 5, 30})
     ->Unit(benchmark::kMillisecond)
     ->Iterations(120);  // the same 120 frames (about 1.3 periods of the foot's motion) every run
+// The scenes' display surface, same arguments: the converged defaults and the real-time setting.
+BENCHMARK(BM_ShankFrameLoft)
+    ->Args({0, 20, 4, 5, 30})
+    ->Args({0, 3, 1, 5, 30})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(120);
 
 // 43 bundles with irregular (R2-sampled) elliptic cross-sections on a 7 x 7 grid, touching.
 struct Synthetic {
