@@ -252,8 +252,8 @@ void BM_SignedDistanceBatch(benchmark::State& state) {
 }
 BENCHMARK(BM_SignedDistanceBatch)->Unit(benchmark::kMillisecond);
 
-void BM_RayFirstHit(benchmark::State& state) {
-  const MeshQuery& q = tibia_query();
+// First hits of rays from box points in random directions.
+void run_ray_first_hit(benchmark::State& state, const MeshQuery& q) {
   const Points3 P = box_points(tibia(), 100000, 6);
   std::mt19937_64 rng(7);
   std::normal_distribution<double> g(0.0, 1.0);
@@ -266,6 +266,8 @@ void BM_RayFirstHit(benchmark::State& state) {
   }
   state.SetItemsProcessed(state.iterations());
 }
+
+void BM_RayFirstHit(benchmark::State& state) { run_ray_first_hit(state, tibia_query()); }
 BENCHMARK(BM_RayFirstHit);
 
 // ----- Both trees side by side -----
@@ -332,18 +334,7 @@ void BM_InsideSingleTree(benchmark::State& state) {
 BENCHMARK(BM_InsideSingleTree)->ArgNames({"tree", "near"})->ArgsProduct({{0, 1}, {0, 1}});
 
 void BM_RayFirstHitTree(benchmark::State& state) {
-  const MeshQuery& q = tibia_query(state.range(0));
-  const Points3 P = box_points(tibia(), 100000, 6);
-  std::mt19937_64 rng(7);
-  std::normal_distribution<double> g(0.0, 1.0);
-  Points3 D(P.rows(), 3);
-  for (Eigen::Index i = 0; i < D.rows(); ++i) D.row(i) = Eigen::RowVector3d(g(rng), g(rng), g(rng));
-  Eigen::Index i = 0;
-  for (auto _ : state) {
-    benchmark::DoNotOptimize(q.cast_ray(P.row(i).transpose(), D.row(i).transpose()));
-    if (++i == P.rows()) i = 0;
-  }
-  state.SetItemsProcessed(state.iterations());
+  run_ray_first_hit(state, tibia_query(state.range(0)));
 }
 BENCHMARK(BM_RayFirstHitTree)->ArgNames({"tree"})->Arg(0)->Arg(1);
 
