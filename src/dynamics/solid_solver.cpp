@@ -690,6 +690,16 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
       const double yn = y.lpNorm<Eigen::Infinity>();
       last_rate = last_step_norm > 0.0 ? yn / last_step_norm : 0.0;
       last_step_norm = yn;
+      // A full step below the tolerance is accepted without the line search (which would accept
+      // it whatever the merit says): its force evaluation would only confirm it. The state is the
+      // same bits; the blow-up guard then uses the potential at the previous iterate.
+      if (yn < tol) {
+        x += y;
+        spdlog::trace("solid '{}' Newton {}: |r| {:.3e} N, |dx| {:.3e} m, converged, lambda {:.4g} Pa",
+                      m.rest.name, it, rep.residual, yn, lambda);
+        converged = true;
+        break;
+      }
     }
     // Backtracking line search on the incremental potential (the Lagrangian for the exact
     // constraint); inverted trials are rejected.
