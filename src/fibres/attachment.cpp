@@ -290,6 +290,57 @@ Attachments find_bone_attachments(const TriMesh& muscle, const std::vector<TriMe
   return a;
 }
 
+Attachments find_bone_role_attachments(const TriMesh& muscle,
+                                       const std::vector<TriMesh>& origin_bones,
+                                       const std::vector<TriMesh>& insertion_bones,
+                                       const BoneRoleOptions& options) {
+  if (origin_bones.empty() && insertion_bones.empty())
+    throw_usage("no bone mesh given for the attachment areas", {});
+  if (!(options.distance > 0.0)) throw_usage("the attachment distance must be positive", {});
+  if (!(options.end_fraction > 0.0 && options.end_fraction < 0.5))
+    throw_usage("the end-region fraction must be in (0, 0.5)", {});
+  const Vec3 axis = calc_principal_axis(muscle, options.origin_towards);
+  const VecX t = calc_axial_parameter(muscle, axis);  // 0 at the origin end
+  // Vertices within `distance` of any of `bones` and within `reach` of their own end.
+  const auto contact = [&](const std::vector<TriMesh>& bones, bool origin_side, double reach) {
+    std::vector<char> near(muscle.num_vertices(), 0);
+    for (const TriMesh& bone : bones) {
+      const MeshQuery q(bone);
+      const VecX d = q.calc_distances(muscle.V);
+      for (Eigen::Index v = 0; v < d.size(); ++v) near[v] |= d(v) <= options.distance;
+    }
+    std::vector<int> out;
+    for (Eigen::Index v = 0; v < muscle.num_vertices(); ++v)
+      if (near[v] && (origin_side ? t(v) <= reach : t(v) >= 1.0 - reach))
+        out.push_back(static_cast<int>(v));
+    return drop_contact_specks(muscle, std::move(out), 0.02);
+  };
+  std::vector<int> o = contact(origin_bones, true, options.origin_reach);
+  std::vector<int> i = contact(insertion_bones, false, options.insertion_reach);
+  if (o.empty() && i.empty())
+    throw_bad_input("no part of the muscle lies within " + std::to_string(options.distance * 1e3) +
+                        " mm of its origin or insertion bones",
+                    {.suggestion = "check the bones belong to this muscle and share its frame "
+                                   "and unit, or increase --attach-distance"});
+  // A side without contact takes its end region; the other side's contact leaves it.
+  const auto in_end = [&](Eigen::Index v, bool origin_side) {
+    return origin_side ? t(v) <= options.end_fraction : t(v) >= 1.0 - options.end_fraction;
+  };
+  for (const bool origin_side : {true, false}) {
+    std::vector<int>& side = origin_side ? o : i;
+    if (!side.empty()) continue;
+    for (Eigen::Index v = 0; v < t.size(); ++v)
+      if (in_end(v, origin_side)) side.push_back(static_cast<int>(v));
+    std::vector<int>& other = origin_side ? i : o;
+    std::erase_if(other, [&](int v) { return in_end(v, origin_side); });
+    other = drop_contact_specks(muscle, std::move(other), 0.02);
+  }
+  Attachments a{make_attachment_area(muscle, std::move(o), "origin"),
+                make_attachment_area(muscle, std::move(i), "insertion")};
+  check_attachments(muscle, a);
+  return a;
+}
+
 Points3 read_landmarks_csv(const std::filesystem::path& path, double metres_per_unit) {
   std::ifstream in(path);
   if (!in)

@@ -72,7 +72,8 @@ Decomposition decompose_muscle(const TriMesh& muscle, const Attachments& areas,
                                                    ? TraceOptions::Seeding::origin_area
                                                    : options.harmonic_seeding,
                                     .seed_by_flux = options.harmonic_seed_by_flux,
-                                    .area_seed_fraction = options.harmonic_area_seed_fraction},
+                                    .area_seed_fraction = options.harmonic_area_seed_fraction,
+                                    .candidate_factor = options.harmonic_candidate_factor},
                                    &areas.insertion);
   d.method_used = FibreMethod::harmonic;
   return d;

@@ -15,6 +15,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 
 namespace fascicle {
 
@@ -295,7 +296,11 @@ struct Tracer {
     return {a + lo * (b - a), best};
   }
 
-  Points3 trace(const Vec3& seed, int seed_tet) const {
+  // `reached` (optional): set to whether the fibre ended on its target (the area's value or, with
+  // end_on_boundary, the surface past the middle of the potential) rather than by running out of
+  // steps or slides.
+  Points3 trace(const Vec3& seed, int seed_tet, bool* reached = nullptr) const {
+    if (reached) *reached = false;
     std::vector<Vec3> pts{seed};
     Location loc = locate(f.tets, seed_tet, seed);
     if (loc.tet < 0) return Points3();
@@ -308,6 +313,7 @@ struct Tracer {
     for (int step = 0; step < max_steps; ++step) {
       if (progress(potential(loc)) >= u_stop) {
         stopped_inside = true;
+        if (reached) *reached = true;
         break;
       }
       // RK4 on the unit direction field; stages that leave the mesh fall back to an Euler step.
@@ -358,7 +364,11 @@ struct Tracer {
       if (strict && on_area)
         for (int k = 1; k < 4; ++k)
           on_area = on_area && progress(f.u(f.tets.T(bt, (face + k) % 4))) >= 1.0 - 1e-9;
-      if ((end_on_boundary && u_exit >= 0.5) || on_area || ++slides > max_steps / 2) break;
+      if ((end_on_boundary && u_exit >= 0.5) || on_area) {
+        if (reached) *reached = true;
+        break;
+      }
+      if (++slides > max_steps / 2) break;
       const Vec3 a = f.tets.V.row(f.tets.T(bt, (face + 1) % 4));
       const Vec3 b = f.tets.V.row(f.tets.T(bt, (face + 2) % 4));
       const Vec3 c = f.tets.V.row(f.tets.T(bt, (face + 3) % 4));
@@ -475,6 +485,56 @@ int find_boundary_tet(const FaceKeys& boundary, const TriMesh& S, int f) {
 
 }  // namespace
 
+namespace {
+
+// `count` columns of X (candidates as columns) in farthest-point order: the first the one nearest
+// the mean of `first`, each next the candidate farthest from those chosen; `first` before
+// `second` (second is used only when first has fewer than count). Returns the chosen columns
+// sorted by index (the seeds' stratified order).
+std::vector<int> select_farthest(const Eigen::MatrixXd& X, const std::vector<int>& first,
+                                 const std::vector<int>& second, int count) {
+  std::vector<int> chosen;
+  VecX d2 = VecX::Constant(X.cols(), std::numeric_limits<double>::infinity());
+  for (const std::vector<int>* tier : {&first, &second}) {
+    if (tier->empty()) continue;
+    if (chosen.empty()) {
+      VecX mean = VecX::Zero(X.rows());
+      for (int i : *tier) mean += X.col(i);
+      mean /= static_cast<double>(tier->size());
+      int pick = tier->front();
+      double best = std::numeric_limits<double>::infinity();
+      for (int i : *tier)
+        if (const double d = (X.col(i) - mean).squaredNorm(); d < best) {
+          best = d;
+          pick = i;
+        }
+      chosen.push_back(pick);
+      for (int i = 0; i < X.cols(); ++i) d2(i) = (X.col(i) - X.col(pick)).squaredNorm();
+    }
+    std::vector<char> taken(X.cols(), 0);
+    for (int c : chosen) taken[c] = 1;
+    while (static_cast<int>(chosen.size()) < count) {
+      int pick = -1;
+      double best = -1.0;
+      for (int i : *tier)
+        if (!taken[i] && d2(i) > best) {
+          best = d2(i);
+          pick = i;
+        }
+      if (pick < 0) break;
+      chosen.push_back(pick);
+      taken[pick] = 1;
+      for (int i = 0; i < X.cols(); ++i)
+        d2(i) = std::min(d2(i), (X.col(i) - X.col(pick)).squaredNorm());
+    }
+    if (static_cast<int>(chosen.size()) >= count) break;
+  }
+  std::sort(chosen.begin(), chosen.end());
+  return chosen;
+}
+
+}  // namespace
+
 FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea& origin,
                                const TraceOptions& options, const AttachmentArea* insertion) {
   if (options.count < 1 || options.resolution < 2)
@@ -492,18 +552,53 @@ FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea&
   FibreSet set;
   set.fibres.resize(options.count);
   std::vector<char> ok(options.count, 0);
-  // Traces both ways from an interior seed: origin end first (the backward trace reversed).
-  const auto trace_both_ways = [&](std::size_t i, const Vec3& seed, int tet) {
-    const Points3 to_insertion = forward.trace(seed, tet);
-    const Points3 to_origin = backward.trace(seed, tet);
-    if (to_insertion.rows() < 2 || to_origin.rows() < 2) return;
+  // Traces both ways from an interior seed: origin end first (the backward trace reversed),
+  // resampled; empty when a trace fails. `reached`: both ends on their targets.
+  const auto join_both_ways = [&](const Vec3& seed, int tet, bool* reached) {
+    bool to_end = false, to_start = false;
+    const Points3 to_insertion = forward.trace(seed, tet, &to_end);
+    const Points3 to_origin = backward.trace(seed, tet, &to_start);
+    if (reached) *reached = to_end && to_start;
+    if (to_insertion.rows() < 2 || to_origin.rows() < 2) return Points3();
     Points3 full(to_origin.rows() + to_insertion.rows() - 1, 3);
     full.topRows(to_origin.rows()) = to_origin.colwise().reverse();
     full.bottomRows(to_insertion.rows() - 1) = to_insertion.bottomRows(to_insertion.rows() - 1);
-    set.fibres[i] = resample_polyline(full, options.resolution);
+    return resample_polyline(full, options.resolution);
+  };
+  const auto trace_both_ways = [&](std::size_t i, const Vec3& seed, int tet) {
+    Points3 P = join_both_ways(seed, tet, nullptr);
+    if (P.rows() < 2) return;
+    set.fibres[i] = std::move(P);
     ok[i] = 1;
   };
-  if (options.seeding == TraceOptions::Seeding::volume) {
+  if (options.seeding == TraceOptions::Seeding::volume && options.candidate_factor > 1) {
+    // Oversampled volume seeds, every candidate traced; the fibres are chosen by farthest-point
+    // order of their shapes (docs/fibres.md), candidates with both ends on their areas first.
+    const int n = options.count;
+    const std::vector<detail::TetSample> seeds =
+        detail::sample_tets(m.V, m.T, n * options.candidate_factor);
+    std::vector<Points3> cand(seeds.size());
+    std::vector<char> reached(seeds.size(), 0);
+    parallel_for(seeds.size(), [&](std::size_t i) {
+      bool r = false;
+      cand[i] = join_both_ways(seeds[i].point, seeds[i].tet, &r);
+      reached[i] = r;
+    });
+    constexpr int kShapePoints = 5;
+    Eigen::MatrixXd shape(3 * kShapePoints, static_cast<Eigen::Index>(cand.size()));
+    std::vector<int> first_tier, second_tier;
+    for (std::size_t i = 0; i < cand.size(); ++i) {
+      if (cand[i].rows() < 2) continue;
+      const Points3 Q = resample_polyline(cand[i], kShapePoints);
+      for (int k = 0; k < kShapePoints; ++k) shape.block<3, 1>(3 * k, i) = Q.row(k).transpose();
+      (reached[i] ? first_tier : second_tier).push_back(static_cast<int>(i));
+    }
+    const std::vector<int> chosen = select_farthest(shape, first_tier, second_tier, n);
+    for (std::size_t j = 0; j < chosen.size(); ++j) {
+      set.fibres[j] = std::move(cand[chosen[j]]);
+      ok[j] = 1;
+    }
+  } else if (options.seeding == TraceOptions::Seeding::volume) {
     // Optionally a share of the fibres starts on the areas (stratified over each), so that the
     // ends also reach the parts of the areas the flux hardly feeds.
     const int per_area =

@@ -76,6 +76,30 @@ Attachments find_bone_attachments(const TriMesh& muscle, const std::vector<TriMe
                                   double end_fraction = 0.08,
                                   const Vec3& origin_towards = Vec3::UnitZ());
 
+// Bone areas with anatomical roles (find_bone_role_attachments).
+struct BoneRoleOptions {
+  double distance = 0.002;     // a muscle vertex within this distance of a bone touches it (m)
+  double end_fraction = 0.08;  // end region of a side whose bones the belly does not touch
+  // A bone contact counts only within this fraction of the principal axis from its own end
+  // (1: anywhere). Anatomy texts give the extent of an origin along the bone, e.g. the tibialis
+  // anterior arises from the upper two-thirds of the tibia's lateral surface; a belly lying on
+  // the bone beyond that slides over it.
+  double origin_reach = 1.0;
+  double insertion_reach = 1.0;
+  Vec3 origin_towards = Vec3::UnitZ();
+};
+
+// Areas from bones given with their roles: origin = the muscle vertices within `distance` of an
+// origin bone (and within origin_reach of the origin end), insertion likewise. A side whose bones
+// the belly does not touch -- its tendon is not part of the mesh (Visible Human bellies), or no
+// bone is given -- takes its end region (the musculotendinous junction), and the other side's
+// contact then gives up the vertices in that end region. Contact specks are dropped as in
+// find_bone_attachments. Throws bad_input when neither side touches its bones.
+Attachments find_bone_role_attachments(const TriMesh& muscle,
+                                       const std::vector<TriMesh>& origin_bones,
+                                       const std::vector<TriMesh>& insertion_bones,
+                                       const BoneRoleOptions& options = {});
+
 // Muscle architecture for aponeurosis attachment areas (Blemker & Delp 2005's unipennate and
 // bipennate templates).
 enum class Architecture { unipennate, bipennate };

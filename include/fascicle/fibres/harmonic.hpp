@@ -88,6 +88,11 @@ struct TraceOptions {
   // volume seeding with the insertion area given: this share of the fibres starts on the areas
   // instead (half on each, stratified by area), traced into the muscle to the other area.
   double area_seed_fraction = 0.0;
+  // volume seeding: > 1 traces this many times `count` seeds and keeps `count` fibres chosen by
+  // farthest-point order of their shapes (five points along each fibre, origin end to insertion
+  // end; fibres with both ends on their areas first; area_seed_fraction is then not used).
+  // 1: the seeds themselves.
+  int candidate_factor = 1;
 };
 
 // Traces `count` fibres: seeds spread over the origin area's triangles (area-weighted R2
