@@ -56,8 +56,15 @@ TrianglePoint closest_on_degenerate(const Vec3& p, const Vec3& a, const Vec3& b,
 
 }  // namespace
 
-TrianglePoint closest_point_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b,
-                                        const Vec3& c) {
+namespace {
+
+// closest_point_on_triangle for any Eigen 3-vectors (the BVH passes its packed double corners as
+// maps, without copies); the same operations in the same order, hence bit-identical results.
+template <class A, class B, class C>
+#if defined(__GNUC__)
+__attribute__((always_inline))
+#endif
+inline TrianglePoint closest_on_triangle(const Vec3& p, const A& a, const B& b, const C& c) {
   // Ericson 2005, section 5.1.5: classify p against the Voronoi regions of the vertices, edges and
   // face using dot products of the edge vectors, from cheapest to most expensive test.
   const Vec3 ab = b - a, ac = c - a, ap = p - a;
@@ -74,7 +81,7 @@ TrianglePoint closest_point_on_triangle(const Vec3& p, const Vec3& a, const Vec3
   const double vb = d5 * d2 - d1 * d6;
   const double va = d3 * d6 - d5 * d4;
   const double area2 = ab.cross(ac).squaredNorm();
-  if (!(area2 > 0.0)) return closest_on_degenerate(p, a, b, c);
+  if (!(area2 > 0.0)) return closest_on_degenerate(p, Vec3(a), Vec3(b), Vec3(c));
   if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) {  // edge ab
     const double v = d1 / (d1 - d3);
     return {a + v * ab, Vec3(1.0 - v, v, 0.0)};
@@ -91,6 +98,13 @@ TrianglePoint closest_point_on_triangle(const Vec3& p, const Vec3& a, const Vec3
   const double inv = 1.0 / (va + vb + vc);
   const double v = vb * inv, w = vc * inv;
   return {a + v * ab + w * ac, Vec3(1.0 - v - w, v, w)};
+}
+
+}  // namespace
+
+TrianglePoint closest_point_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b,
+                                        const Vec3& c) {
+  return closest_on_triangle(p, a, b, c);
 }
 
 std::optional<RayHit> intersect_ray_triangle(const Vec3& origin, const Vec3& direction,
@@ -208,6 +222,13 @@ struct MeshQuery::Bvh {
   std::vector<unsigned> ring_start;      // welded vertex i -> ring_slots[ring_start[i] ...)
   std::vector<unsigned> ring_slots;
   std::vector<unsigned> vertex_of_slot;  // slot -> welded vertex of its first corner
+  // The descent's copy of the adjacency: welded vertex v's neighbours adjacent[adjacent_start[v]
+  // ...] in blocks of kNeighbourLanes, each block their float positions as x, y, z rows of
+  // kNeighbourLanes (padding lanes +inf), blocks [neighbour_block_start[v], ...[v + 1]). One SIMD
+  // sequence then gives the distances to all neighbours of a vertex (usually one block).
+  static constexpr unsigned kNeighbourLanes = 8;
+  std::vector<unsigned> neighbour_block_start;
+  std::vector<float> neighbour_xyz;
   // Start vertices of queries without a hint: a uniform grid over the (enlarged) bounding box
   // whose cells hold a welded vertex near the cell centre (an approximate nearest vertex; the
   // descent corrects it). Points outside the grid use the nearest boundary cell.
@@ -248,6 +269,12 @@ struct MeshQuery::Bvh {
   bool compact = false;
   std::vector<Node4> nodes;
   std::int32_t root = 0;
+  // Parents for the bottom-up start of a traversal (closest_compact): node -> its parent node and
+  // leaf (cluster) -> its parent node, -1 for the root. Each welded vertex's home leaf is the leaf
+  // of its first incident slot: a query seeded at that vertex screens it first.
+  std::vector<std::int32_t> node_parent;
+  std::vector<std::int32_t> leaf_parent;
+  std::vector<unsigned> home_leaf;
   // Per leaf: a slab-cylinder {x : h_lo <= n.(x - c) <= h_hi, |in-plane offset| <= R} that holds
   // all its triangles (c the anchor, n the area-weighted mean normal, zero if it vanishes).
   std::vector<double> leaf_bound;
@@ -346,15 +373,25 @@ unsigned find_ray_candidates(const float* __restrict block, float ox, float oy, 
 
 namespace {
 
+// The float nearest x, moved one float toward -inf (round_down) or +inf (round_up) when it lies on
+// the wrong side of x. The step is done on the bits (what nextafter does, without the library call
+// on the query path): a float's successor toward +inf has the next larger bit pattern when it is
+// >= +0 and the next smaller when it is < 0 (-inf steps to -FLT_MAX; -0 cannot occur on that side).
 float round_down(double x) {
   float f = static_cast<float>(x);
-  if (static_cast<double>(f) > x) f = std::nextafter(f, -std::numeric_limits<float>::infinity());
+  if (static_cast<double>(f) > x) {
+    const auto bits = std::bit_cast<std::uint32_t>(f);
+    f = std::bit_cast<float>(f > 0.0f ? bits - 1u : f == 0.0f ? 0x80000001u : bits + 1u);
+  }
   return f;
 }
 
 float round_up(double x) {
   float f = static_cast<float>(x);
-  if (static_cast<double>(f) < x) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+  if (static_cast<double>(f) < x) {
+    const auto bits = std::bit_cast<std::uint32_t>(f);
+    f = std::bit_cast<float>(f < 0.0f ? bits - 1u : f == 0.0f ? 0x00000001u : bits + 1u);
+  }
   return f;
 }
 
@@ -403,6 +440,7 @@ struct PointQueryState {
   double radius_pad;  // absolute padding for the float rounding of the query point
   double margin;      // absolute margin for the rounding of the lower bounds (calc_lower_bounds)
   int seed_vertex = -1;  // compact tree: the vertex whose distance seeded best_d2 (no slot chosen)
+  int start_vertex = -1;  // compact tree: the local-minimum vertex of the descent (its leaf first)
 };
 
 // Embree's radius: the exact distance, rounded up and padded so float culling stays conservative.
@@ -417,8 +455,9 @@ float padded_radius(double d, double radius_pad) {
 __attribute__((always_inline))
 #endif
 inline bool test_slot(PointQueryState* q, unsigned t) {
-  const TrianglePoint tp =
-      closest_point_on_triangle(q->p, q->bvh->corner(t, 0), q->bvh->corner(t, 1), q->bvh->corner(t, 2));
+  const double* x = q->bvh->corners.data() + 9 * static_cast<std::size_t>(t);
+  const TrianglePoint tp = closest_on_triangle(q->p, Eigen::Map<const Vec3>(x), Eigen::Map<const Vec3>(x + 3),
+                                               Eigen::Map<const Vec3>(x + 6));
   const double d2 = (q->p - tp.point).squaredNorm();
   // Ties go to the lower triangle index, so the answer does not depend on traversal order.
   if (d2 < q->best_d2 ||
@@ -435,21 +474,60 @@ inline bool test_slot(PointQueryState* q, unsigned t) {
 
 // Greedy descent over the welded vertices: move to the closest adjacent vertex while it is
 // strictly closer to p. Ends at a local minimum of the vertex distance (on a smooth surface usually
-// the nearest vertex), whose incident triangles then give a nearly exact upper bound.
+// the nearest vertex), whose incident triangles then give a nearly exact upper bound. The distances
+// are compared in float (a heuristic: any vertex is a valid start, the seed bound is the final
+// vertex's exact double distance), all neighbours of a vertex at once from its neighbour blocks;
+// ties go to the first neighbour, so the path is the same on every machine.
 unsigned descend(const MeshQuery::Bvh& bvh, const Vec3& p, unsigned v) {
-  double best = bvh.vertex_distance2(v, p);
+  constexpr unsigned L = MeshQuery::Bvh::kNeighbourLanes;
+  static_assert(L == 8, "two 4-lane halves");
+  const float px = static_cast<float>(p.x()), py = static_cast<float>(p.y()), pz = static_cast<float>(p.z());
+  const auto distance2 = [&](unsigned u) {
+    const double* x = bvh.vertex_xyz.data() + 3 * static_cast<std::size_t>(u);
+    const float dx = px - static_cast<float>(x[0]), dy = py - static_cast<float>(x[1]),
+                dz = pz - static_cast<float>(x[2]);
+    return dx * dx + dy * dy + dz * dz;
+  };
+  float best = distance2(v);
+#if defined(__SSE2__)
+  const __m128 px4 = _mm_set1_ps(px), py4 = _mm_set1_ps(py), pz4 = _mm_set1_ps(pz);
+#endif
   for (int step = 0; step < kMaxDescentSteps; ++step) {
-    unsigned next = v;
-    for (unsigned k = bvh.adjacent_start[v]; k < bvh.adjacent_start[v + 1]; ++k) {
-      const unsigned u = bvh.adjacent[k];
-      const double d2 = bvh.vertex_distance2(u, p);
-      if (d2 < best) {
-        best = d2;
-        next = u;
+    unsigned next = std::numeric_limits<unsigned>::max();
+    const unsigned first_block = bvh.neighbour_block_start[v];
+    for (unsigned b = first_block; b < bvh.neighbour_block_start[v + 1]; ++b) {
+      const float* block = bvh.neighbour_xyz.data() + 3 * L * static_cast<std::size_t>(b);
+#if defined(__SSE2__)
+      const auto half = [&](unsigned o) {
+        const __m128 dx = _mm_sub_ps(px4, _mm_loadu_ps(block + o));
+        const __m128 dy = _mm_sub_ps(py4, _mm_loadu_ps(block + L + o));
+        const __m128 dz = _mm_sub_ps(pz4, _mm_loadu_ps(block + 2 * L + o));
+        return _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dx), _mm_mul_ps(dy, dy)), _mm_mul_ps(dz, dz));
+      };
+      const __m128 lo = half(0), hi = half(4);
+      __m128 m = _mm_min_ps(lo, hi);
+      m = _mm_min_ps(m, _mm_shuffle_ps(m, m, _MM_SHUFFLE(1, 0, 3, 2)));
+      m = _mm_min_ps(m, _mm_shuffle_ps(m, m, _MM_SHUFFLE(2, 3, 0, 1)));
+      const float smallest = _mm_cvtss_f32(m);
+      if (smallest < best) {
+        const unsigned lanes = static_cast<unsigned>(_mm_movemask_ps(_mm_cmpeq_ps(lo, m))) |
+                               (static_cast<unsigned>(_mm_movemask_ps(_mm_cmpeq_ps(hi, m))) << 4);
+        best = smallest;
+        next = bvh.adjacent_start[v] + L * (b - first_block) + static_cast<unsigned>(std::countr_zero(lanes));
       }
+#else
+      for (unsigned k = 0; k < L; ++k) {
+        const float dx = px - block[k], dy = py - block[L + k], dz = pz - block[2 * L + k];
+        const float d2 = dx * dx + dy * dy + dz * dz;
+        if (d2 < best) {
+          best = d2;
+          next = bvh.adjacent_start[v] + L * (b - first_block) + k;
+        }
+      }
+#endif
     }
-    if (next == v) break;
-    v = next;
+    if (next == std::numeric_limits<unsigned>::max()) break;
+    v = bvh.adjacent[next];
   }
   return v;
 }
@@ -468,6 +546,7 @@ void seed_from_vertex(PointQueryState* q, unsigned v) {
     // closest point is not returned as the vertex itself), and test_slot only accepts distances
     // below the bound, so the bound is widened by the absolute rounding margin, not only
     // relatively; closest_with_hint still tests v's triangles if nothing was accepted.
+    q->start_vertex = static_cast<int>(v);
     const double d = std::sqrt(bvh.vertex_distance2(v, q->p)) + q->margin;
     const double d2 = d * d * (1.0 + 1e-12);
     if (d2 < q->best_d2) {
@@ -557,7 +636,14 @@ float padded_radius2(double d, double radius_pad) {
 // farthest first so the nearest is visited next; entries farther than the current best (padded,
 // in float) are dropped when popped. Same exactness argument as Embree's culling: every float box
 // contains its padded double triangles, and the radius covers the float rounding of p.
-void closest_compact(PointQueryState* q) {
+//
+// The traversal starts bottom-up from `start_leaf` (the home leaf of the seed vertex; -1: from the
+// root): that leaf is screened first, which usually gives the exact answer's distance at once,
+// then each ancestor in turn, from the leaf's parent up to the root, offers its *other* children
+// to the usual top-down stack, which is emptied before the next ancestor. Every leaf of the tree
+// is the start leaf or lies under exactly one such offered child, so the same leaves pass the
+// culling as from the root, only with a tighter radius from the start.
+void closest_compact(PointQueryState* q, std::int32_t start_leaf) {
   const MeshQuery::Bvh& bvh = *q->bvh;
   struct Entry {
     std::int32_t item;
@@ -565,7 +651,6 @@ void closest_compact(PointQueryState* q) {
   };
   std::array<Entry, 3 * MeshQuery::Bvh::kMaxTreeDepth + 4> stack;
   std::size_t top = 0;
-  stack[top++] = {bvh.root, 0.0f};
   float r2 = padded_radius2(q->best_limit, q->radius_pad);
   // The leaf children's slab-cylinder test in float, relative to the node's anchor: accepted
   // within the best distance plus the rounding margin plus kFloatMargin of the magnitudes involved
@@ -582,18 +667,16 @@ void closest_compact(PointQueryState* q) {
   const __m128 px4 = _mm_set1_ps(px), py4 = _mm_set1_ps(py), pz4 = _mm_set1_ps(pz);
   const __m128 zero = _mm_setzero_ps();
 #endif
-  while (top > 0) {
-    const Entry e = stack[--top];
-    if (!(e.d2 <= r2)) continue;
-    if (e.item < 0) {
-      // Leaves passed the slab-cylinder test when pushed; the best may have improved since.
-      if (screen_cluster(q, static_cast<unsigned>(~e.item))) {
-        r2 = padded_radius2(q->best_limit, q->radius_pad);
-        c2 = cylinder_limit2();
-      }
-      continue;
+  const auto screen = [&](unsigned cluster) {
+    if (screen_cluster(q, cluster)) {
+      r2 = padded_radius2(q->best_limit, q->radius_pad);
+      c2 = cylinder_limit2();
     }
-    const MeshQuery::Bvh::Node4& node = bvh.nodes[static_cast<std::size_t>(e.item)];
+  };
+  // Pushes the children of node `index` that pass the box and slab-cylinder tests, except the
+  // child reference `skip`, farthest first.
+  const auto expand = [&](std::int32_t index, std::int32_t skip) {
+    const MeshQuery::Bvh::Node4& node = bvh.nodes[static_cast<std::size_t>(index)];
     alignas(16) float d2[4];
 #if defined(__SSE2__)
     const __m128 dx = _mm_max_ps(_mm_max_ps(_mm_sub_ps(_mm_loadu_ps(node.lo_x), px4),
@@ -643,6 +726,7 @@ void closest_compact(PointQueryState* q) {
     while (mask != 0) {
       const auto k = static_cast<unsigned>(std::countr_zero(mask));
       mask &= mask - 1u;
+      if (node.child[k] == skip) continue;
       const Entry c{node.child[k], d2[k]};
       std::size_t j = top++;
       while (j > base && stack[j - 1].d2 < c.d2) {
@@ -651,6 +735,32 @@ void closest_compact(PointQueryState* q) {
       }
       stack[j] = c;
     }
+  };
+  // Top-down: empties the stack.
+  const auto drain = [&] {
+    while (top > 0) {
+      const Entry e = stack[--top];
+      if (!(e.d2 <= r2)) continue;
+      if (e.item < 0) {
+        // Leaves passed the slab-cylinder test when pushed; the best may have improved since.
+        screen(static_cast<unsigned>(~e.item));
+      } else {
+        expand(e.item, std::numeric_limits<std::int32_t>::min());
+      }
+    }
+  };
+  if (start_leaf < 0) {
+    stack[top++] = {bvh.root, 0.0f};
+    drain();
+    return;
+  }
+  screen(static_cast<unsigned>(start_leaf));
+  std::int32_t from = ~start_leaf;
+  for (std::int32_t node = bvh.leaf_parent[static_cast<std::size_t>(start_leaf)]; node >= 0;
+       node = bvh.node_parent[static_cast<std::size_t>(node)]) {
+    expand(node, from);
+    drain();
+    from = node;
   }
 }
 
@@ -1043,7 +1153,7 @@ void* create_build_leaf(RTCThreadLocalAllocator alloc, const RTCBuildPrimitive* 
 
 // Copies Embree's pointer tree into Bvh::nodes (depth-first preorder) and appends the leaves'
 // triangles to `order` (the slot order); returns the child reference of `item`.
-std::int32_t flatten_build_tree(MeshQuery::Bvh& bvh, const void* item, int depth,
+std::int32_t flatten_build_tree(MeshQuery::Bvh& bvh, const void* item, int depth, std::int32_t parent,
                                 std::vector<Eigen::Index>& order, int& max_depth) {
   max_depth = std::max(max_depth, depth);
   if (depth > MeshQuery::Bvh::kMaxTreeDepth) throw_internal("MeshQuery: the SAH tree is too deep");
@@ -1057,18 +1167,20 @@ std::int32_t flatten_build_tree(MeshQuery::Bvh& bvh, const void* item, int depth
     const auto cluster = static_cast<std::int32_t>(bvh.cluster_begin.size()) - 1;
     for (unsigned k = 0; k < leaf->head.count; ++k) order.push_back(static_cast<Eigen::Index>(leaf->prims[k]));
     bvh.cluster_begin.push_back(static_cast<unsigned>(order.size()));
+    bvh.leaf_parent.push_back(parent);
     return ~cluster;
   }
   const auto* node = static_cast<const BuildNode*>(item);
   const auto index = static_cast<std::int32_t>(bvh.nodes.size());
   bvh.nodes.emplace_back();
+  bvh.node_parent.push_back(parent);
   MeshQuery::Bvh::Node4 flat{};
   for (unsigned k = 0; k < 4; ++k) {
     flat.lo_x[k] = flat.lo_y[k] = flat.lo_z[k] = std::numeric_limits<float>::infinity();
     flat.hi_x[k] = flat.hi_y[k] = flat.hi_z[k] = -std::numeric_limits<float>::infinity();
   }
   for (unsigned k = 0; k < node->head.count; ++k) {
-    flat.child[k] = flatten_build_tree(bvh, node->children[k], depth + 1, order, max_depth);
+    flat.child[k] = flatten_build_tree(bvh, node->children[k], depth + 1, index, order, max_depth);
     flat.valid |= 1u << k;
     if (flat.child[k] < 0) flat.leaves |= 1u << k;
   }
@@ -1126,13 +1238,15 @@ std::vector<Eigen::Index> build_compact_tree(MeshQuery::Bvh& bvh, const TriMesh&
   std::vector<Eigen::Index> order;
   order.reserve(static_cast<std::size_t>(nf));
   bvh.nodes.clear();
+  bvh.node_parent.clear();
+  bvh.leaf_parent.clear();
   bvh.cluster_begin.assign(1, 0u);
   int max_depth = 0;
   try {
     if (root == nullptr || rtcGetDeviceError(bvh.device) != RTC_ERROR_NONE) {
       throw_internal("Embree's BVH builder failed (rtcBuildBVH)");
     }
-    bvh.root = flatten_build_tree(bvh, root, 0, order, max_depth);
+    bvh.root = flatten_build_tree(bvh, root, 0, -1, order, max_depth);
   } catch (...) {
     rtcReleaseBVH(builder);
     throw;
@@ -1272,6 +1386,26 @@ void update_welded_positions(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
   bvh.vertex_xyz.resize(3 * bvh.welded_source.size());
   for (std::size_t i = 0; i < bvh.welded_source.size(); ++i) {
     for (int k = 0; k < 3; ++k) bvh.vertex_xyz[3 * i + static_cast<std::size_t>(k)] = mesh.V(bvh.welded_source[i], k);
+  }
+  // The neighbour blocks of the descent (float positions; padding lanes +inf).
+  constexpr unsigned L = MeshQuery::Bvh::kNeighbourLanes;
+  const auto num_welded = static_cast<unsigned>(bvh.welded_source.size());
+  bvh.neighbour_block_start.resize(num_welded + 1);
+  bvh.neighbour_block_start[0] = 0;
+  for (unsigned v = 0; v < num_welded; ++v) {
+    const unsigned degree = bvh.adjacent_start[v + 1] - bvh.adjacent_start[v];
+    bvh.neighbour_block_start[v + 1] = bvh.neighbour_block_start[v] + (degree + L - 1) / L;
+  }
+  bvh.neighbour_xyz.assign(3 * L * static_cast<std::size_t>(bvh.neighbour_block_start[num_welded]),
+                           std::numeric_limits<float>::infinity());
+  for (unsigned v = 0; v < num_welded; ++v) {
+    float* block = bvh.neighbour_xyz.data() + 3 * L * static_cast<std::size_t>(bvh.neighbour_block_start[v]);
+    for (unsigned k = bvh.adjacent_start[v]; k < bvh.adjacent_start[v + 1]; ++k) {
+      const unsigned j = k - bvh.adjacent_start[v];
+      float* lane = block + 3 * L * (j / L) + j % L;
+      const double* x = bvh.vertex_xyz.data() + 3 * static_cast<std::size_t>(bvh.adjacent[k]);
+      for (unsigned c = 0; c < 3; ++c) lane[c * L] = static_cast<float>(x[c]);
+    }
   }
 }
 
@@ -1430,6 +1564,15 @@ MeshQuery::MeshQuery(const TriMesh& mesh, const MeshQueryOptions& options)
     }
     bvh.adjacent_start[num_welded] = out;
     bvh.adjacent.resize(out);
+    if (bvh.compact) {
+      // Home leaf of each welded vertex: the leaf holding its first incident slot.
+      std::vector<unsigned> cluster_of_slot(bvh.num_slots);
+      for (unsigned c = 0; c < bvh.num_clusters(); ++c) {
+        for (unsigned t = bvh.slot_begin(c); t < bvh.slot_end(c); ++t) cluster_of_slot[t] = c;
+      }
+      bvh.home_leaf.resize(num_welded);
+      for (unsigned v = 0; v < num_welded; ++v) bvh.home_leaf[v] = cluster_of_slot[bvh.ring_slots[bvh.ring_start[v]]];
+    }
 
   }
   update_welded_positions(bvh, mesh_);
@@ -1483,7 +1626,7 @@ ClosestPoint MeshQuery::closest_with_hint(const Vec3& p, int hint_triangle,
   q.best_slot = -1;
   // The float query point is off by half an ulp per axis; cover it (and float arithmetic in the
   // box distance) with a few ulps of its largest coordinate.
-  q.radius_pad = bvh_->pad + std::ldexp(p.cwiseAbs().maxCoeff(), -20);
+  q.radius_pad = bvh_->pad + p.cwiseAbs().maxCoeff() * 0x1p-20;  // = ldexp(.., -20), exact
   q.margin = 1e-10 * ((p - bvh_->middle).norm() + bvh_->scale);
   // Seeds: exact distances to the triangles around the vertex nearest to p (found by greedy
   // descent from the hint's vertex, or from the start-vertex grid) bound the answer from
@@ -1503,7 +1646,7 @@ ClosestPoint MeshQuery::closest_with_hint(const Vec3& p, int hint_triangle,
   query.time = 0.0f;
   query.radius = padded_radius(q.best_limit, q.radius_pad);
   if (bvh_->compact) {
-    closest_compact(&q);
+    closest_compact(&q, q.start_vertex >= 0 ? static_cast<std::int32_t>(bvh_->home_leaf[static_cast<std::size_t>(q.start_vertex)]) : -1);
   } else {
     RTCPointQueryContext context;
     rtcInitPointQueryContext(&context);

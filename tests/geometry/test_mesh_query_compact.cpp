@@ -195,6 +195,25 @@ TEST(MeshQueryCompact, DegenerateAndDuplicatedTrianglesAgainstBruteForce) {
   EXPECT_GT(duplicates, 10);  // ties between a triangle and its copy really occurred
 }
 
+// The seed's vertex descent compares distances in float, 8 neighbours at a time: cap centres of
+// valence 48 (six neighbour blocks), a mesh so far from the origin that float cannot tell its
+// vertices apart (the descent stops at once; the answer must not depend on it), and a cylinder
+// with its triangles shuffled (neighbours far apart in memory).
+TEST(MeshQueryCompact, FloatDescentOnHighValenceAndUnresolvableMeshes) {
+  const TriMesh cylinder = make_cylinder(0.02, 0.08, 48, 3);
+  check_compact(cylinder, 200, 21);
+  TriMesh far = make_ellipsoid(Vec3(0.02, 0.01, 0.015), 2);
+  far.V.rowwise() += Eigen::RowVector3d(3.0e6, -2.0e6, 1.0e6);  // float spacing 0.25 m here
+  check_compact(far, 60, 22, false);
+  TriMesh shuffled = cylinder;
+  std::mt19937_64 rng(23);
+  for (Eigen::Index f = shuffled.F.rows() - 1; f > 0; --f) {
+    const Eigen::Index g = std::uniform_int_distribution<Eigen::Index>(0, f)(rng);
+    shuffled.F.row(f).swap(shuffled.F.row(g));
+  }
+  check_compact(shuffled, 100, 24);
+}
+
 const TriMesh& tibia() {
   static const TriMesh m =
       test::read_binary_stl_mm(test::data_path("visible_human_female/right/VHF_Right_Bone_Tibia_smooth.stl"));
