@@ -728,6 +728,21 @@ void closest_compact(PointQueryState* q, std::int32_t start_leaf) {
       mask &= mask - 1u;
       if (node.child[k] == skip) continue;
       const Entry c{node.child[k], d2[k]};
+      // Start loading what the child's visit reads first (a leaf's screen rows, a node's boxes)
+      // while the nearer entries are processed.
+#if defined(__GNUC__)
+      if (c.item < 0) {
+        const float* rows = bvh.soa.data() + MeshQuery::Bvh::kSoaRows * MeshQuery::Bvh::kCluster * static_cast<std::size_t>(~c.item);
+        __builtin_prefetch(rows);
+        __builtin_prefetch(rows + 16);
+        __builtin_prefetch(rows + 32);
+        __builtin_prefetch(rows + 48);
+      } else {
+        const auto* next = reinterpret_cast<const char*>(&bvh.nodes[static_cast<std::size_t>(c.item)]);
+        __builtin_prefetch(next);
+        __builtin_prefetch(next + 64);
+      }
+#endif
       std::size_t j = top++;
       while (j > base && stack[j - 1].d2 < c.d2) {
         stack[j] = stack[j - 1];
@@ -1381,13 +1396,9 @@ void refit_compact_tree(MeshQuery::Bvh& bvh) {
   }
 }
 
-// Positions of the welded vertices from the mesh (each welded vertex takes its first mesh vertex).
-void update_welded_positions(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
-  bvh.vertex_xyz.resize(3 * bvh.welded_source.size());
-  for (std::size_t i = 0; i < bvh.welded_source.size(); ++i) {
-    for (int k = 0; k < 3; ++k) bvh.vertex_xyz[3 * i + static_cast<std::size_t>(k)] = mesh.V(bvh.welded_source[i], k);
-  }
-  // The neighbour blocks of the descent (float positions; padding lanes +inf).
+// The layout of the descent's neighbour blocks (Bvh::neighbour_block_start), all lanes +inf
+// (padding lanes stay so; update_welded_positions fills the others).
+void make_neighbour_blocks(MeshQuery::Bvh& bvh) {
   constexpr unsigned L = MeshQuery::Bvh::kNeighbourLanes;
   const auto num_welded = static_cast<unsigned>(bvh.welded_source.size());
   bvh.neighbour_block_start.resize(num_welded + 1);
@@ -1398,6 +1409,19 @@ void update_welded_positions(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
   }
   bvh.neighbour_xyz.assign(3 * L * static_cast<std::size_t>(bvh.neighbour_block_start[num_welded]),
                            std::numeric_limits<float>::infinity());
+}
+
+// Positions of the welded vertices from the mesh (each welded vertex takes its first mesh vertex),
+// and their float copies in the neighbour blocks.
+void update_welded_positions(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
+  bvh.vertex_xyz.resize(3 * bvh.welded_source.size());
+  for (std::size_t i = 0; i < bvh.welded_source.size(); ++i) {
+    for (int k = 0; k < 3; ++k) bvh.vertex_xyz[3 * i + static_cast<std::size_t>(k)] = mesh.V(bvh.welded_source[i], k);
+  }
+  // The neighbour blocks of the descent (float positions; their layout and +inf padding lanes are
+  // made once, by make_neighbour_blocks).
+  constexpr unsigned L = MeshQuery::Bvh::kNeighbourLanes;
+  const auto num_welded = static_cast<unsigned>(bvh.welded_source.size());
   for (unsigned v = 0; v < num_welded; ++v) {
     float* block = bvh.neighbour_xyz.data() + 3 * L * static_cast<std::size_t>(bvh.neighbour_block_start[v]);
     for (unsigned k = bvh.adjacent_start[v]; k < bvh.adjacent_start[v + 1]; ++k) {
@@ -1575,6 +1599,7 @@ MeshQuery::MeshQuery(const TriMesh& mesh, const MeshQueryOptions& options)
     }
 
   }
+  make_neighbour_blocks(bvh);
   update_welded_positions(bvh, mesh_);
   build_start_grid(bvh);
   if (bvh.compact) refit_compact_tree(bvh);
