@@ -342,6 +342,38 @@ double calc_clearance(const Poly2& poly, const Vec2& p) {
   return inside ? std::sqrt(d2) : -std::sqrt(d2);
 }
 
+// `count` points of an attachment area for the re-routed fibre ends: with factor > 1, chosen by
+// farthest-point order among factor x count stratified area samples (starting with the sample
+// nearest the area's centroid), so they are evenly spaced out to the area's rim; else the
+// stratified samples themselves.
+Points3 select_area_targets(const TriMesh& muscle, const AttachmentArea& area, int count,
+                            int factor) {
+  if (factor <= 1) return calc_area_samples(muscle, area, count);
+  const Points3 C = calc_area_samples(muscle, area, factor * count);
+  const Eigen::Index m = C.rows();
+  Points3 out(std::min<Eigen::Index>(count, m), 3);
+  if (out.rows() == 0) return out;
+  std::vector<double> d2(m, std::numeric_limits<double>::infinity());
+  Eigen::Index pick = 0;
+  double nearest = std::numeric_limits<double>::infinity();
+  for (Eigen::Index j = 0; j < m; ++j)
+    if (const double d = (Vec3(C.row(j)) - area.centroid).squaredNorm(); d < nearest) {
+      nearest = d;
+      pick = j;
+    }
+  for (Eigen::Index i = 0; i < out.rows(); ++i) {
+    const Vec3 p = C.row(pick);
+    out.row(i) = p.transpose();
+    Eigen::Index next = 0;
+    for (Eigen::Index j = 0; j < m; ++j) {
+      d2[j] = std::min(d2[j], (Vec3(C.row(j)) - p).squaredNorm());
+      if (d2[j] > d2[next]) next = j;
+    }
+    pick = next;
+  }
+  return out;
+}
+
 }  // namespace
 
 FibreSet TemplateMapper::calc_fibres(const FibreSet& unit_fibres, bool reroute_ends) const {
@@ -392,7 +424,7 @@ FibreSet TemplateMapper::calc_fibres(const FibreSet& unit_fibres, bool reroute_e
     const int count = static_cast<int>(out.fibres.size());
     const auto reroute = [&](bool at_origin) {
       const AttachmentArea& area = at_origin ? areas_.origin : areas_.insertion;
-      const Points3 targets = calc_area_samples(muscle_, area, count);
+      const Points3 targets = select_area_targets(muscle_, area, count, options_.target_factor);
       std::vector<Vec3> guess(count);
       std::vector<Eigen::Index> cut(count);
       for (int f = 0; f < count; ++f) {

@@ -22,6 +22,10 @@ struct TemplateMapOptions {
   double end_margin = 0.02;  // fraction of the axial extent kept clear of the muscle's tips
   double reroute_fraction = 0.15;  // part of each fibre end replaced by a segment to the area
   int smoothing_iterations = 4;    // Laplacian smoothing passes (ends fixed)
+  // Re-routing targets on each area: > 1 chooses them by farthest-point order among this many
+  // times as many stratified area samples (evenly spaced out to the rim); 1: the stratified
+  // samples themselves (the default: docs/fibres.md gives the measured trade-off).
+  int target_factor = 1;
   // Box x axis (the template's thickness direction, across which pennate fibres run), projected
   // normal to the line of action; zero: x is normal to the direction of largest variance.
   // E.g. the normal of a known aponeurosis sheet.
