@@ -12,11 +12,13 @@
 #include <benchmark/benchmark.h>
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <memory>
+#include <vector>
 
 using namespace fascicle;
 
@@ -34,18 +36,26 @@ std::shared_ptr<const SolidDynamicsModel> make_model(int degree, int qpts, Volum
 }
 
 // args: degree, quadrature points per span, Newton (1: full, 0: modified within a step,
-// 2: factorisation kept over up to 20 steps), supernodal CHOLMOD (1), simplicial CHOLMOD (2) or
-// Eigen LDLT (0)
+// 2: factorisation kept over up to 20 steps, >= 10: over up to that many steps; these rows keep
+// the settings they were measured with before the defaults changed: Newton from x_n + h v_n, no
+// contraction-rate refresh), 3: the solver's defaults (SolverOptions{}) at this benchmark's
+// tolerance 1e-6, 4: the defaults including their tolerance 1e-7; supernodal CHOLMOD (1),
+// simplicial CHOLMOD (2) or Eigen LDLT (0)
 void BM_BackwardEulerStep(benchmark::State& state) {
   const int degree = static_cast<int>(state.range(0));
   const int q = static_cast<int>(state.range(1));
   auto m = make_model(degree, q, VolumeMethod::exact);
   SolverOptions o;
-  o.refresh_stiffness = state.range(2) != 0;
-  o.reuse_factorisation_steps = state.range(2) == 2 ? 20 : state.range(2) >= 10 ? static_cast<int>(state.range(2)) : 0;
+  const int mode = static_cast<int>(state.range(2));
+  if (mode != 3 && mode != 4) {
+    o.refresh_stiffness = mode != 0;
+    o.reuse_factorisation_steps = mode == 2 ? 20 : mode >= 10 ? mode : 0;
+    o.extrapolate_start = false;
+    o.refresh_contraction_rate = 0.0;
+  }
   o.supernodal = state.range(3) != 0;
   o.cholmod_simplicial = state.range(3) == 2;
-  o.newton_tolerance = 1e-6;
+  if (mode != 4) o.newton_tolerance = 1e-6;
   SolidDynamicsSolver solver(m, o);
   StepInputs in;
   in.excitation = 1.0;
@@ -69,10 +79,11 @@ BENCHMARK(BM_BackwardEulerStep)
     ->Args({2, 3, 1, 1})->Args({2, 2, 1, 1})->Args({2, 2, 1, 0})->Args({2, 2, 0, 1})
     ->Args({2, 2, 2, 1})->Args({3, 4, 1, 1})->Args({3, 2, 2, 1})->Args({3, 2, 1, 1})
     ->Args({3, 2, 50, 1})->Args({3, 2, 200, 1})->Args({3, 2, 2, 2})->Args({3, 2, 1, 2})
+    ->Args({3, 2, 3, 1})->Args({3, 2, 4, 1})->Args({2, 2, 3, 1})
     ->Unit(benchmark::kMillisecond);
 // The target row (issue 10: a cubic 6 x 6 x 10 solid) with a fixed number of steps, for a
 // load-independent instruction count: valgrind --tool=callgrind --toggle-collect='*::step*'.
-BENCHMARK(BM_BackwardEulerStep)->Name("BM_CubicStepFixedCount")->Args({3, 2, 2, 1})
+BENCHMARK(BM_BackwardEulerStep)->Name("BM_CubicStepFixedCount")->Args({3, 2, 2, 1})->Args({3, 2, 3, 1})
     ->Iterations(200)->Unit(benchmark::kMillisecond);
 
 void BM_ForceEvaluation(benchmark::State& state) {
@@ -300,12 +311,16 @@ void run_soleus(benchmark::State& state, int reuse, int flags) {
   spec.attachments.push_back({"origin", -1, find_end_layer(rest, 0)});
   spec.attachments.push_back({"insertion", -1, find_end_layer(rest, 1)});
   auto m = std::make_shared<const SolidDynamicsModel>(compile_solid_dynamics(rest, spec));
-  SolverOptions o;
-  o.reuse_factorisation_steps = reuse;
-  o.extrapolate_start = (flags & 1) != 0;
+  SolverOptions o;  // reuse < 0: the solver's defaults (SolverOptions{})
+  if (reuse >= 0) {
+    o.reuse_factorisation_steps = reuse;
+    o.extrapolate_start = (flags & 1) != 0;
+    o.refresh_contraction_rate = 0.0;
+  }
   if (flags & 2) o.refresh_contraction_rate = 0.5;
   if (flags & 4) o.refresh_contraction_rate = 0.25;
   const int dt_ms = std::max(1, flags >> 8);
+  std::vector<double> pennation_track;  // every 10 ms, for comparisons between runs
   const int nsteps = 500 / dt_ms;
   if (std::getenv("FASCICLE_DEBUG_DYN")) spdlog::set_level(spdlog::level::trace);
   double pennation0 = 0.0, pennation1 = 0.0, max_err = 0.0, stretch = 0.0;
@@ -323,12 +338,26 @@ void run_soleus(benchmark::State& state, int reuse, int flags) {
         std::fprintf(stderr, "step %d t %.4f a %.4f newton %d factor %d\n", k,
                      solver.get_state().time_s, solver.get_state().activation, r.newton_iterations,
                      r.factorisations);
-      if ((k + 1) % std::max(1, 10 / dt_ms) == 0)
-        max_err = std::max(max_err, std::abs(solver.calc_metrics(in).volume_error));
+      if ((k + 1) % std::max(1, 10 / dt_ms) == 0) {
+        const SolidMetrics mk = solver.calc_metrics(in);
+        max_err = std::max(max_err, std::abs(mk.volume_error));
+        pennation_track.push_back(mk.mean_pennation_rad);
+      }
     }
     const SolidMetrics end = solver.calc_metrics(in);
     pennation1 = end.mean_pennation_rad;
     stretch = end.mean_fibre_stretch;
+    // FASCICLE_SOLEUS_TRACE=FILE: the end state and the pennation every 10 ms, full precision.
+    if (const char* path = std::getenv("FASCICLE_SOLEUS_TRACE")) {
+      if (std::FILE* f = std::fopen(path, "a")) {
+        std::fprintf(f, "reuse %d flags %d end_pennation_rad %.12g end_stretch %.12g max_volume_error %.3g max_pennation_rad %.12g",
+                     reuse, flags, pennation1, stretch, max_err,
+                     *std::max_element(pennation_track.begin(), pennation_track.end()));
+        for (double p : pennation_track) std::fprintf(f, " %.12g", p);
+        std::fprintf(f, "\n");
+        std::fclose(f);
+      }
+    }
   }
   state.counters["simulated_s"] = 0.5;
   state.counters["pennation_rest_deg"] = pennation0 * 180.0 / M_PI;
@@ -342,13 +371,24 @@ void BM_SoleusContraction(benchmark::State& state) {
   run_soleus(state, static_cast<int>(state.range(0)), 0);
 }
 BENCHMARK(BM_SoleusContraction)->Arg(0)->Arg(20)->Iterations(1)->Unit(benchmark::kSecond);
+// The solver's defaults (SolverOptions{}, what `fascicle solid simulate` and the scene use) at the
+// CLI's default step (1 ms, range(0) = 1) and the scene's (5 ms, range(0) = 5).
+void BM_SoleusContractionDefaults(benchmark::State& state) {
+  run_soleus(state, -1, static_cast<int>(state.range(0)) << 8);
+}
+BENCHMARK(BM_SoleusContractionDefaults)->Arg(1)->Arg(5)->Iterations(1)->Unit(benchmark::kSecond);
 // range(0): reuse_factorisation_steps; range(1): flags of run_soleus (1: extrapolated start;
 // 256 k: steps of k ms).
 void BM_SoleusContractionVariant(benchmark::State& state) {
   run_soleus(state, static_cast<int>(state.range(0)), static_cast<int>(state.range(1)));
 }
 BENCHMARK(BM_SoleusContractionVariant)->Args({20, 1})->Args({20, 3})->Args({20, 5})->Args({20, 2})
-    ->Args({20, 512})->Args({20, 513})->Args({20, 1280})->Args({20, 1281})->Iterations(1)->Unit(benchmark::kSecond);
+    ->Args({20, 512})->Args({20, 513})->Args({20, 1280})->Args({20, 1281})
+    // refactorisation policy: kept over up to 200 steps, or with no step cap (refreshed only when
+    // Newton slows, the step size changes or a step fails)
+    ->Args({200, 0})->Args({200, 1})->Args({1000000, 0})->Args({1000000, 1})->Args({1000000, 2})
+    ->Args({1000000, 3})->Args({1000000, 1280})->Args({1000000, 1281})
+    ->Iterations(1)->Unit(benchmark::kSecond);
 
 }  // namespace
 

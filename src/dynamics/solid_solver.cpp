@@ -18,6 +18,73 @@ namespace fascicle {
 
 namespace {
 
+// Triangular solves with one supernode of CHOLMOD's supernodal LLᵀ (the factor is the library's;
+// only its application is ours). A supernode holds columns k1 .. k1 + nscol of L as a dense
+// nsrow x nscol column-major block whose row indices are rows[0 .. nsrow), the first nscol of them
+// k1 .. k1 + nscol. t0, t1: the right-hand sides gathered at those rows (t1 may be null).
+// Forward (L y = b): column by column, y_j = t_j / L_jj, then t_i −= L_ij y_j below it (an axpy
+// over i: every t_i sums in column order whatever the vector width). Backward (Lᵀ x = y): row
+// j's dot product over i > j with four partial sums (i mod 4) combined as (s0 + s1) + (s2 + s3),
+// then the tail in order, so the generic and the AVX2 clone give the same bits.
+[[gnu::always_inline]] inline void supernode_forward_body(const double* Lx, int nsrow, int nscol,
+                                                          double* __restrict t0,
+                                                          double* __restrict t1) {
+  for (int j = 0; j < nscol; ++j) {
+    const double* __restrict col = Lx + static_cast<std::ptrdiff_t>(j) * nsrow;
+    const double d = col[j];
+    const double y0 = t0[j] / d;
+    t0[j] = y0;
+    if (t1) {
+      const double y1 = t1[j] / d;
+      t1[j] = y1;
+      for (int i = j + 1; i < nsrow; ++i) {
+        t0[i] -= col[i] * y0;
+        t1[i] -= col[i] * y1;
+      }
+    } else {
+      for (int i = j + 1; i < nsrow; ++i) t0[i] -= col[i] * y0;
+    }
+  }
+}
+[[gnu::always_inline]] inline double dot4(const double* __restrict a, const double* __restrict b,
+                                          int begin, int end) {
+  double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+  int i = begin;
+  for (; i + 4 <= end; i += 4) {
+    s0 += a[i] * b[i];
+    s1 += a[i + 1] * b[i + 1];
+    s2 += a[i + 2] * b[i + 2];
+    s3 += a[i + 3] * b[i + 3];
+  }
+  double s = (s0 + s1) + (s2 + s3);
+  for (; i < end; ++i) s += a[i] * b[i];
+  return s;
+}
+[[gnu::always_inline]] inline void supernode_backward_body(const double* Lx, int nsrow, int nscol,
+                                                           double* __restrict t0,
+                                                           double* __restrict t1) {
+  for (int j = nscol - 1; j >= 0; --j) {
+    const double* __restrict col = Lx + static_cast<std::ptrdiff_t>(j) * nsrow;
+    const double d = col[j];
+    t0[j] = (t0[j] - dot4(col, t0, j + 1, nsrow)) / d;
+    if (t1) t1[j] = (t1[j] - dot4(col, t1, j + 1, nsrow)) / d;
+  }
+}
+__attribute__((target("avx2"))) void supernode_forward_avx2(const double* Lx, int nsrow, int nscol,
+                                                            double* t0, double* t1) {
+  supernode_forward_body(Lx, nsrow, nscol, t0, t1);
+}
+void supernode_forward_generic(const double* Lx, int nsrow, int nscol, double* t0, double* t1) {
+  supernode_forward_body(Lx, nsrow, nscol, t0, t1);
+}
+__attribute__((target("avx2"))) void supernode_backward_avx2(const double* Lx, int nsrow,
+                                                             int nscol, double* t0, double* t1) {
+  supernode_backward_body(Lx, nsrow, nscol, t0, t1);
+}
+void supernode_backward_generic(const double* Lx, int nsrow, int nscol, double* t0, double* t1) {
+  supernode_backward_body(Lx, nsrow, nscol, t0, t1);
+}
+
 // CHOLMOD's LLᵀ of the free block of the backward-Euler matrix (the rows and columns of attached
 // dofs are identity with zero right-hand sides, so they are left out: fewer unknowns and no
 // fill through them). The block is permuted once, with the fill-reducing ordering CHOLMOD picks
@@ -108,6 +175,21 @@ class FreeBlockCholesky {
     L_ = cholmod_analyze(&S1, &c_);
     if (!L_) throw_internal("CHOLMOD could not analyse the permuted backward-Euler matrix");
     B_ = cholmod_allocate_dense(nf_, 2, nf_, CHOLMOD_REAL, &c_);
+    // The supernodal solve below needs the natural ordering (no permutation inside the factor).
+    own_solve_ = !simplicial && L_->is_super && L_->itype == CHOLMOD_INT;
+    if (own_solve_ && L_->Perm) {
+      const int* P = static_cast<const int*>(L_->Perm);
+      for (int k = 0; k < nf_; ++k) own_solve_ = own_solve_ && P[k] == k;
+    }
+    if (own_solve_) {
+      const int* pi = static_cast<const int*>(L_->pi);
+      int maxrows = 0;
+      for (std::size_t sn = 0; sn < L_->nsuper; ++sn) maxrows = std::max(maxrows, pi[sn + 1] - pi[sn]);
+      t0_.assign(maxrows, 0.0);
+      t1_.assign(maxrows, 0.0);
+    }
+    __builtin_cpu_init();
+    avx2_ = __builtin_cpu_supports("avx2");
   }
 
   // Factorises the free block of the matrix whose values (in the analysed pattern) are given;
@@ -125,6 +207,13 @@ class FreeBlockCholesky {
     double* b = static_cast<double*>(B_->x);
     for (int j = 0; j < ncols; ++j)
       for (int k = 0; k < nf_; ++k) b[k + nf_ * j] = B[dof_[k] + full_ * j];
+    if (own_solve_ && L_->is_super && L_->is_ll) {
+      solve_supernodal(b, ncols == 2 ? b + nf_ : nullptr);
+      std::fill(X, X + static_cast<std::ptrdiff_t>(full_) * ncols, 0.0);
+      for (int j = 0; j < ncols; ++j)
+        for (int k = 0; k < nf_; ++k) X[dof_[k] + full_ * j] = b[k + nf_ * j];
+      return;
+    }
     cholmod_dense Bv = *B_;
     Bv.ncol = ncols;
     Bv.nzmax = static_cast<std::size_t>(nf_) * ncols;
@@ -139,6 +228,41 @@ class FreeBlockCholesky {
   }
 
  private:
+  // L Lᵀ x = b in place (b0, and b1 when not null), supernode by supernode on CHOLMOD's factor.
+  void solve_supernodal(double* b0, double* b1) {
+    const int* super = static_cast<const int*>(L_->super);
+    const int* pi = static_cast<const int*>(L_->pi);
+    const int* px = static_cast<const int*>(L_->px);
+    const int* ls = static_cast<const int*>(L_->s);
+    const double* lx = static_cast<const double*>(L_->x);
+    const int ns = static_cast<int>(L_->nsuper);
+    double* t0 = t0_.data();
+    double* t1 = b1 ? t1_.data() : nullptr;
+    auto forward = avx2_ ? supernode_forward_avx2 : supernode_forward_generic;
+    auto backward = avx2_ ? supernode_backward_avx2 : supernode_backward_generic;
+    for (int sn = 0; sn < ns; ++sn) {
+      const int nscol = super[sn + 1] - super[sn], nsrow = pi[sn + 1] - pi[sn];
+      const int* rows = ls + pi[sn];
+      for (int i = 0; i < nsrow; ++i) t0[i] = b0[rows[i]];
+      if (b1)
+        for (int i = 0; i < nsrow; ++i) t1[i] = b1[rows[i]];
+      forward(lx + px[sn], nsrow, nscol, t0, t1);
+      for (int i = 0; i < nsrow; ++i) b0[rows[i]] = t0[i];
+      if (b1)
+        for (int i = 0; i < nsrow; ++i) b1[rows[i]] = t1[i];
+    }
+    for (int sn = ns - 1; sn >= 0; --sn) {
+      const int nscol = super[sn + 1] - super[sn], nsrow = pi[sn + 1] - pi[sn];
+      const int* rows = ls + pi[sn];
+      for (int i = 0; i < nsrow; ++i) t0[i] = b0[rows[i]];
+      if (b1)
+        for (int i = 0; i < nsrow; ++i) t1[i] = b1[rows[i]];
+      backward(lx + px[sn], nsrow, nscol, t0, t1);
+      for (int i = 0; i < nscol; ++i) b0[rows[i]] = t0[i];
+      if (b1)
+        for (int i = 0; i < nscol; ++i) b1[rows[i]] = t1[i];
+    }
+  }
   cholmod_sparse get_view() {
     cholmod_sparse s{};
     s.nrow = s.ncol = static_cast<std::size_t>(nf_);
@@ -160,7 +284,9 @@ class FreeBlockCholesky {
                 *Y2_ = nullptr, *E2_ = nullptr;
   std::vector<int> p_, i_, src_, dof_;
   std::vector<double> x_;
+  std::vector<double> t0_, t1_;  // gathered right-hand sides of one supernode
   int nf_ = 0, full_ = 0;
+  bool own_solve_ = false, avx2_ = false;
 };
 
 }  // namespace
@@ -228,6 +354,8 @@ struct SolidDynamicsSolver::Workspace {
   double max_lumped_mass = 0.0;  // largest row sum of the mass matrix (kg)
   VecX prev_v;                   // velocities at the start of the last accepted step
   double prev_h = 0.0;           // its length (0: none, e.g. after set_state)
+  VecX extrapolation;            // h² (v_n − v_{n−1})/h_{n−1} of the current step
+  bool extrapolation_wins = true;  // the last step's solution was closer to the extrapolated start
   double last_lambda = 0.0;  // multiplier of the exact volume constraint (warm start)
   double omega_max = 0.0;    // symplectic Euler: cached largest frequency (rad/s)
   int omega_age = -1;
@@ -362,6 +490,7 @@ void SolidDynamicsSolver::set_state(SolidState s) {
   ws_->omega_age = -1;
   ws_->factor_age = -1;
   ws_->prev_h = 0.0;
+  ws_->extrapolation_wins = true;
 }
 
 void SolidDynamicsSolver::correct_state(const Points3& P, const Points3& V) {
@@ -559,9 +688,13 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   const double inertia = quasi ? 1e-6 : 1.0;  // quasi-static: a tiny mass regularises free modes
   const VecX x_tilde = quasi ? x_n : VecX(x_n + h * v_n);
   VecX x = x_tilde;
-  const bool extrapolated = options_.extrapolate_start && !quasi && w.prev_h > 0.0 &&
-                            w.prev_v.size() == x.size();
-  if (extrapolated) x += (h * h / w.prev_h) * (v_n - w.prev_v);
+  // The extrapolated start is used while it predicts better than x̃ (checked after each step):
+  // it helps on smooth motions and overshoots oscillations at large steps.
+  const bool can_extrapolate = options_.extrapolate_start && !quasi && w.prev_h > 0.0 &&
+                               w.prev_v.size() == x.size();
+  const bool extrapolated = can_extrapolate && w.extrapolation_wins;
+  if (can_extrapolate) w.extrapolation = (h * h / w.prev_h) * (v_n - w.prev_v);
+  if (extrapolated) x += w.extrapolation;
   for (int i = 0; i < 3 * n; ++i)
     if (w.fixed_dof[i]) x[i] = target[i];
   const Points3 V_start = s.V;
@@ -633,6 +766,7 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   bool shift_changed = false;
   double shift = 0.0;  // Levenberg–Marquardt shift: A + shift·M/h² when Newton's direction fails
   double last_step_norm = 0.0, last_rate = 0.0;  // |Δx| of the last iteration and the contraction
+  int since_factor = 0;  // Newton directions of this step from the current factorisation
   for (int it = 0; it < options_.max_newton_iterations; ++it) {
     ++rep.newton_iterations;
     const VecX d = x - x_n;
@@ -642,9 +776,12 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
     const bool reuse = options_.reuse_factorisation_steps > 0 && it == 0 && w.factor_age >= 0 &&
                        w.factor_age < options_.reuse_factorisation_steps && w.factor_h == h;
     const bool modified = !options_.refresh_stiffness || options_.reuse_factorisation_steps > 0;
-    const bool slow = factored && modified && rep.factorisations == 0 &&
-                      (it >= 4 || (options_.refresh_contraction_rate > 0.0 && it >= 2 &&
-                                   last_rate > options_.refresh_contraction_rate));
+    // Newton slows down: refresh after 4 directions from one factorisation, or (with a rate) as
+    // soon as two of them contract by less than the rate (again after a refresh: a hard step
+    // falls back to full Newton).
+    const bool slow = factored && modified &&
+                      (since_factor >= 4 || (options_.refresh_contraction_rate > 0.0 && since_factor >= 2 &&
+                                             last_rate > options_.refresh_contraction_rate));
     if (reuse) {
       factored = true;
     } else if (!factored || !modified || slow || shift_changed) {
@@ -665,7 +802,10 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
       w.factor_age = 0;
       w.factor_h = h;
       factored = true;
+      since_factor = 0;
+      last_step_norm = 0.0;  // the contraction rate is measured with one factorisation
     }
+    ++since_factor;
     VecX y, z;
     if (penalty || exact) {
       const Eigen::Matrix<double, Eigen::Dynamic, 2> yz = w.solve2(-r, g);
@@ -788,6 +928,15 @@ StepReport SolidDynamicsSolver::try_step(double h, const StepInputs& in, SolidSt
   if (!converged)
     throw_numerical(fmt::format("Newton did not converge in {} iterations (|r| = {:.3e} N)",
                                 options_.max_newton_iterations, rep.residual));
+  if (can_extrapolate) {
+    double e_plain = 0.0, e_extra = 0.0;
+    for (int i = 0; i < 3 * n; ++i) {
+      if (w.fixed_dof[i]) continue;
+      e_plain = std::max(e_plain, std::abs(x[i] - x_tilde[i]));
+      e_extra = std::max(e_extra, std::abs(x[i] - x_tilde[i] - w.extrapolation[i]));
+    }
+    w.extrapolation_wins = e_extra < e_plain;
+  }
   s.P = unflatten_points(x);
   s.V = quasi ? Points3::Zero(n, 3) : unflatten_points((x - x_n) / h);
   w.last_potential_J = w.fe.energy_J;

@@ -226,14 +226,22 @@ struct StepInputs {
   Points3 external_forces;                 // optional #P x 3 generalised forces (N); empty: none
 };
 
+// SolverOptions::reuse_factorisation_steps with no practical cap (10⁶ steps): the factorisation
+// is kept until Newton slows down, the step size changes or a step fails.
+inline constexpr int kReuseFactorisationNoCap = 1000000;
+
 struct SolverOptions {
   Integrator integrator = Integrator::backward_euler;
   int max_newton_iterations = 25;
   double newton_tolerance = 1e-7;       // on |Δx|∞ relative to the solid's size
   bool refresh_stiffness = true;        // false: keep the factorisation of the first iteration
                                         //   of the step while Newton converges (modified Newton)
-  int reuse_factorisation_steps = 0;    // > 0: keep a factorisation over up to this many steps
-                                        //   (lagged Jacobian); refreshed when Newton slows down
+  // Backward Euler and quasi-static: 0 is full Newton (a factorisation per iteration); > 0 keeps
+  // a factorisation over up to this many steps (lagged Jacobian, modified Newton), refreshed
+  // earlier when Newton slows down (refresh_contraction_rate, or 4 slow iterations), when the
+  // step size changes or after a failed step. Default: no step cap (docs/solid-dynamics.md,
+  // "Refactorisation policy").
+  int reuse_factorisation_steps = kReuseFactorisationNoCap;
   bool supernodal = true;               // CHOLMOD supernodal LLᵀ (falls back to Eigen's LDLᵀ
                                         //   when the matrix is not positive definite)
   bool cholmod_simplicial = false;      // with supernodal: CHOLMOD's simplicial LLᵀ instead of
@@ -243,10 +251,10 @@ struct SolverOptions {
   double energy_blowup_factor = 1e3;    // error if the energy grows by this factor plus 1 J/kg
   // Backward Euler: start Newton from x̃ + h² (v_n − v_{n−1})/h_{n−1} (constant acceleration
   // from the last two steps) instead of x̃ = x_n + h v_n. Only the starting point changes.
-  bool extrapolate_start = false;
+  bool extrapolate_start = true;
   // With a kept factorisation (modified Newton): refresh it as soon as the observed contraction
   // |Δx_k|/|Δx_{k−1}| of a step exceeds this rate (0: only after 4 slow iterations).
-  double refresh_contraction_rate = 0.0;
+  double refresh_contraction_rate = 0.5;
 };
 
 struct StepReport {
