@@ -69,9 +69,10 @@ struct SimulateArgs {
   double duration = 0.5, dt = 1e-3, frame_dt = 0.01, tendon = 0.0, pennation = 0.0;
   double c1 = 2e3, damping = 0.0, explicit_safety = 0.5, tendon_modulus = 2e6;
   double release = -1.0;  // quick release: the insertion is let go at this time (s)
-  int reuse = 0;          // keep a factorisation over up to this many steps
+  int reuse = SolverOptions{}.reuse_factorisation_steps;  // keep a factorisation over <= N steps
   bool gravity = false;
-  bool extrapolate = false;  // Newton starts from the last two steps' acceleration
+  bool extrapolate = false;     // --extrapolate-start given (the solver's default is on)
+  bool no_extrapolate = false;  // --no-extrapolate-start: Newton starts from x_n + h v_n
 };
 
 // Excitation over time: a constant in [0, 1] or the first data column of a .sto/.mot/.csv table.
@@ -135,7 +136,7 @@ void run_simulate(const SimulateArgs& a) {
   else throw_usage("--integrator must be backward-euler, symplectic-euler or quasi-static");
   o.explicit_safety = a.explicit_safety;
   o.reuse_factorisation_steps = a.reuse;
-  o.extrapolate_start = a.extrapolate;
+  o.extrapolate_start = a.extrapolate || (o.extrapolate_start && !a.no_extrapolate);
   if (a.extrapolate && o.integrator != Integrator::backward_euler)
     throw_usage("--extrapolate-start applies to --integrator backward-euler only");
   if (!(a.dt > 0.0) || !(a.duration > 0.0) || !(a.frame_dt >= a.dt))
@@ -327,10 +328,13 @@ void add_solid_commands(CLI::App& app, Invocation& run) {
     cmd->add_option("--damping", a->damping, "Mass-proportional Rayleigh damping (1/s)");
     cmd->add_flag("--gravity", a->gravity, "Apply gravity (-z, 9.81 m/s^2)");
     cmd->add_option("--reuse-factorisation", a->reuse,
-                    "Backward Euler: keep a factorisation over up to N steps (lagged Jacobian)");
+                    "Backward Euler: keep a factorisation over up to N steps (lagged Jacobian, "
+                    "refreshed when Newton slows; default: no step cap; 0: full Newton)");
     cmd->add_flag("--extrapolate-start", a->extrapolate,
                   "Backward Euler: start Newton from the last two steps' acceleration (same "
-                  "equations and tolerance; fewer iterations on smooth motions)");
+                  "equations and tolerance; fewer iterations on smooth motions; the default)");
+    cmd->add_flag("--no-extrapolate-start", a->no_extrapolate,
+                  "Backward Euler: start Newton from x_n + h v_n instead");
     cmd->add_option("--release", a->release, "Quick release: let the insertion go at this time (s)");
     cmd->add_option("--explicit-safety", a->explicit_safety,
                     "Symplectic Euler sub-step as a fraction of the stability limit 2/w_max");

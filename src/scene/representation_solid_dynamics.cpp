@@ -124,7 +124,7 @@ struct SolidOptions {
   std::array<int, 3> lattice{3, 8, 6};
   int degree = 2;
   double time_step_s = 0.005;
-  int reuse_factorisation = 20;
+  int reuse_factorisation = SolverOptions{}.reuse_factorisation_steps;  // the solver's default policy
   int settle_steps = 8;
   double settle_step_s = 0.01;
 };
