@@ -728,21 +728,6 @@ void closest_compact(PointQueryState* q, std::int32_t start_leaf) {
       mask &= mask - 1u;
       if (node.child[k] == skip) continue;
       const Entry c{node.child[k], d2[k]};
-      // Start loading what the child's visit reads first (a leaf's screen rows, a node's boxes)
-      // while the nearer entries are processed.
-#if defined(__GNUC__)
-      if (c.item < 0) {
-        const float* rows = bvh.soa.data() + MeshQuery::Bvh::kSoaRows * MeshQuery::Bvh::kCluster * static_cast<std::size_t>(~c.item);
-        __builtin_prefetch(rows);
-        __builtin_prefetch(rows + 16);
-        __builtin_prefetch(rows + 32);
-        __builtin_prefetch(rows + 48);
-      } else {
-        const auto* next = reinterpret_cast<const char*>(&bvh.nodes[static_cast<std::size_t>(c.item)]);
-        __builtin_prefetch(next);
-        __builtin_prefetch(next + 64);
-      }
-#endif
       std::size_t j = top++;
       while (j > base && stack[j - 1].d2 < c.d2) {
         stack[j] = stack[j - 1];
@@ -932,19 +917,42 @@ constexpr std::size_t kBlock = 256;  // points per coherent block in the batched
 
 // Points in Morton order, so that consecutive queries are near each other.
 std::vector<Eigen::Index> spatial_order(const Points3& P) {
-  std::vector<Eigen::Index> order(static_cast<std::size_t>(P.rows()));
-  if (P.rows() == 0) return order;
+  const auto n = static_cast<std::size_t>(P.rows());
+  std::vector<Eigen::Index> order(n);
+  if (n == 0) return order;
   const Vec3 lo = P.colwise().minCoeff().transpose();
   const Vec3 hi = P.colwise().maxCoeff().transpose();
   Vec3 inv;
   for (int k = 0; k < 3; ++k) inv[k] = hi[k] > lo[k] ? 1.0 / (hi[k] - lo[k]) : 0.0;
-  std::vector<std::pair<std::uint32_t, Eigen::Index>> keyed(order.size());
+  std::vector<std::uint32_t> code(n), code_next(n);
+  std::vector<Eigen::Index> order_next(n);
   for (Eigen::Index i = 0; i < P.rows(); ++i) {
     const Vec3 p = P.row(i).transpose();
-    keyed[static_cast<std::size_t>(i)] = {p.allFinite() ? morton_code(p, lo, inv) : 0u, i};
+    code[static_cast<std::size_t>(i)] = p.allFinite() ? morton_code(p, lo, inv) : 0u;
+    order[static_cast<std::size_t>(i)] = i;
   }
-  std::sort(keyed.begin(), keyed.end());
-  for (std::size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
+  // Stable least-significant-digit radix sort of the 30-bit codes, 10 bits per pass, starting from
+  // the index order: the result is sorted by (code, index), as a comparison sort of the pairs
+  // would give, in linear time.
+  constexpr unsigned kBits = 10, kBuckets = 1u << kBits;
+  std::array<std::size_t, kBuckets> start;
+  for (unsigned shift = 0; shift < 30; shift += kBits) {
+    start.fill(0);
+    for (std::size_t i = 0; i < n; ++i) ++start[(code[i] >> shift) & (kBuckets - 1)];
+    std::size_t sum = 0;
+    for (std::size_t& s : start) {
+      const std::size_t c = s;
+      s = sum;
+      sum += c;
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::size_t to = start[(code[i] >> shift) & (kBuckets - 1)]++;
+      code_next[to] = code[i];
+      order_next[to] = order[i];
+    }
+    code.swap(code_next);
+    order.swap(order_next);
+  }
   return order;
 }
 
