@@ -129,19 +129,21 @@ void scene_detail::calc_muscle_shapes(const Model& model, State& state) {
   }
 }
 
-void calc_muscle_overlaps(const Model& model, State& state) {
+namespace {
+
+// Depth of a's vertices inside b for every ordered pair (a, b) of closed surfaces whose boxes meet,
+// at [a * n + b] (0 for the other pairs). surface[m] is null for a muscle without a closed surface.
+// Keeps (and refits) the cache's per-muscle graph and query.
+std::vector<double> calc_pair_depths(const Model& model, const std::vector<const Points3*>& surface,
+                                     MuscleOverlapCache& cache) {
   const size_t n = model.muscles.size();
-  MuscleOverlapCache& cache = state.overlap_cache;
   cache.graph.resize(n);
   cache.query.resize(n);
-  // Broad phase: bounding boxes of the closed surfaces of this frame.
+  // Broad phase: bounding boxes of the closed surfaces.
   std::vector<Eigen::AlignedBox3d> box(n);
-  std::vector<char> closed(n, 0);
   for (size_t m = 0; m < n; ++m) {
-    const Points3& V = state.muscles[m].surface;
-    closed[m] = V.rows() > 0 && V.rows() == model.muscles[m].rest_mesh.V.rows() &&
-                model.muscles[m].rest_mesh.F.rows() > 0;
-    if (!closed[m]) continue;
+    if (!surface[m]) continue;
+    const Points3& V = *surface[m];
     box[m] = Eigen::AlignedBox3d(V.colwise().minCoeff().transpose(), V.colwise().maxCoeff().transpose());
   }
   // Ordered pairs (a, b): vertices of a inside b, for boxes that meet.
@@ -149,20 +151,21 @@ void calc_muscle_overlaps(const Model& model, State& state) {
   std::vector<char> is_a(n, 0), is_b(n, 0);
   for (size_t a = 0; a < n; ++a)
     for (size_t b = 0; b < n; ++b)
-      if (a != b && closed[a] && closed[b] && box[a].intersects(box[b])) {
+      if (a != b && surface[a] && surface[b] && box[a].intersects(box[b])) {
         pairs.emplace_back(static_cast<int>(a), static_cast<int>(b));
         is_a[a] = is_b[b] = 1;
       }
-  // Per muscle: the edge graph (once per run) and the query of this frame's surface.
+  // Per muscle: the edge graph (once per run) and the query of this surface.
   std::vector<Eigen::AlignedBox3d> padded(n);
   parallel_for(n, [&](size_t m) {
-    const Points3& V = state.muscles[m].surface;
+    if (!is_a[m] && !is_b[m]) return;
+    const Points3& V = *surface[m];
     if (is_a[m] && cache.graph[m].start.size() != static_cast<size_t>(V.rows()) + 1)
       cache.graph[m] = make_surface_graph(model.muscles[m].rest_mesh.F, V.rows());
     if (!is_b[m]) return;
     padded[m] = calc_padded_bounding_box(V);
-    // A query kept from an earlier frame is refitted to the new vertices (its answers equal a new
-    // query's, geometry/mesh_query.hpp); the first frame builds it.
+    // A query kept from an earlier call is refitted to the new vertices (its answers equal a new
+    // query's, geometry/mesh_query.hpp); the first call builds it.
     if (cache.query[m] && cache.query[m]->get_mesh().V.rows() == V.rows() &&
         cache.query[m]->get_mesh().F.rows() == model.muscles[m].rest_mesh.F.rows())
       cache.query[m]->update_vertices(V);
@@ -170,16 +173,45 @@ void calc_muscle_overlaps(const Model& model, State& state) {
       cache.query[m] = std::make_unique<MeshQuery>(TriMesh{V, model.muscles[m].rest_mesh.F});
   });
   // Narrow phase, in parallel over pairs; each pair's result depends on its two surfaces only.
-  std::vector<double> depth(pairs.size(), 0.0);
+  std::vector<double> depth(n * n, 0.0);
   parallel_for(pairs.size(), [&](size_t k) {
     const auto [a, b] = pairs[k];
-    depth[k] = calc_muscle_overlap(state.muscles[a].surface, cache.graph[a], *cache.query[b], padded[b]).max_depth_m;
+    depth[static_cast<size_t>(a) * n + static_cast<size_t>(b)] =
+        calc_muscle_overlap(*surface[a], cache.graph[a], *cache.query[b], padded[b]).max_depth_m;
   });
-  for (size_t m = 0; m < n; ++m)
-    state.muscles[m].max_muscle_overlap_m = closed[m] ? 0.0 : MuscleFrame::nan;
-  for (size_t k = 0; k < pairs.size(); ++k) {
-    double& d = state.muscles[pairs[k].first].max_muscle_overlap_m;
-    d = std::max(d, depth[k]);
+  return depth;
+}
+
+}  // namespace
+
+void calc_muscle_overlaps(const Model& model, State& state) {
+  const size_t n = model.muscles.size();
+  MuscleOverlapCache& cache = state.overlap_cache;
+  // The rest pose's pair depths (rest meshes), once; the queries built for them are refitted below.
+  if (cache.rest_depth.size() != n * n) {
+    std::vector<const Points3*> rest(n, nullptr);
+    for (size_t m = 0; m < n; ++m)
+      if (model.muscles[m].rest_mesh.V.rows() > 0 && model.muscles[m].rest_mesh.F.rows() > 0)
+        rest[m] = &model.muscles[m].rest_mesh.V;
+    cache.rest_depth = calc_pair_depths(model, rest, cache);
+  }
+  std::vector<const Points3*> now(n, nullptr);
+  for (size_t m = 0; m < n; ++m) {
+    const Points3& V = state.muscles[m].surface;
+    if (V.rows() > 0 && V.rows() == model.muscles[m].rest_mesh.V.rows() && model.muscles[m].rest_mesh.F.rows() > 0)
+      now[m] = &V;
+  }
+  const std::vector<double> depth = calc_pair_depths(model, now, cache);
+  for (size_t a = 0; a < n; ++a) {
+    MuscleFrame& f = state.muscles[a];
+    f.max_muscle_overlap_m = now[a] ? 0.0 : MuscleFrame::nan;
+    f.max_muscle_overlap_growth_m = now[a] ? 0.0 : MuscleFrame::nan;
+    if (!now[a]) continue;
+    for (size_t b = 0; b < n; ++b) {
+      const double d = depth[a * n + b];
+      f.max_muscle_overlap_m = std::max(f.max_muscle_overlap_m, d);
+      f.max_muscle_overlap_growth_m = std::max(f.max_muscle_overlap_growth_m, d - cache.rest_depth[a * n + b]);
+    }
   }
 }
 

@@ -19,7 +19,8 @@ const std::vector<std::string>& get_muscle_metric_names() {
       "activation",        "musculotendon_length_m", "fiber_length_m",        "norm_fiber_length",
       "pennation_rad",     "tendon_length_m",        "tendon_force_N",        "active_fiber_force_N",
       "passive_fiber_force_N", "volume_m3",          "relative_volume_change",
-      "max_bone_penetration_m", "max_muscle_overlap_m", "mean_fibre_length_m", "mean_pennation_rad"};
+      "max_bone_penetration_m", "max_muscle_overlap_m", "mean_fibre_length_m", "mean_pennation_rad",
+      "max_muscle_overlap_growth_m"};
   return names;
 }
 
@@ -29,7 +30,8 @@ std::vector<double> get_muscle_metrics(const Muscle& muscle, const MuscleFrame& 
   return {activation,          f.musculotendon_length_m, h.fiber_length_m,        h.norm_fiber_length,
           h.pennation_rad,     h.tendon_length_m,        h.tendon_force_N,        h.active_fiber_force_N,
           h.passive_fiber_force_N, f.volume_m3,          f.relative_volume_change,
-          f.max_bone_penetration_m, f.max_muscle_overlap_m, f.mean_fibre_length_m, f.mean_pennation_rad};
+          f.max_bone_penetration_m, f.max_muscle_overlap_m, f.mean_fibre_length_m, f.mean_pennation_rad,
+          f.max_muscle_overlap_growth_m};
 }
 
 namespace {

@@ -124,12 +124,15 @@ TEST(MuscleOverlap, CacheAndThreadCountDoNotChangeResults) {
       forward(model, state);
       State fresh = make_state(model);
       fresh.muscles = state.muscles;
-      for (MuscleFrame& mf : fresh.muscles) mf.max_muscle_overlap_m = MuscleFrame::nan;
+      for (MuscleFrame& mf : fresh.muscles) mf.max_muscle_overlap_m = mf.max_muscle_overlap_growth_m = MuscleFrame::nan;
       calc_muscle_overlaps(model, fresh);
       for (size_t m = 0; m < model.muscles.size(); ++m) {
         EXPECT_EQ(fresh.muscles[m].max_muscle_overlap_m, state.muscles[m].max_muscle_overlap_m)
             << "frame " << f << " muscle " << m;
+        EXPECT_EQ(fresh.muscles[m].max_muscle_overlap_growth_m, state.muscles[m].max_muscle_overlap_growth_m)
+            << "frame " << f << " muscle " << m;
         values.push_back(state.muscles[m].max_muscle_overlap_m);
+        values.push_back(state.muscles[m].max_muscle_overlap_growth_m);
       }
     }
     runs.push_back(values);
@@ -139,3 +142,45 @@ TEST(MuscleOverlap, CacheAndThreadCountDoNotChangeResults) {
 }
 
 }  // namespace
+
+// The growth figure: per ordered pair, the depth now minus the pair's depth between the rest meshes
+// (never below 0), the largest over the other muscles. Two muscles, so each one's overlap is its one
+// pair's depth; the rest depths are measured here directly from the rest meshes.
+TEST(MuscleOverlap, GrowthIsTheDepthBeyondTheRestPosePerPair) {
+  const Model model = compile(make_overlapping_scene(), make_default_registry());
+  ASSERT_EQ(model.muscles.size(), 2u);
+  double rest_depth[2];
+  for (int a = 0; a < 2; ++a) {
+    const TriMesh& A = model.muscles[a].rest_mesh;
+    const TriMesh& B = model.muscles[1 - a].rest_mesh;
+    const MeshQuery qb(B);
+    rest_depth[a] = calc_muscle_overlap(A.V, make_surface_graph(A.F, A.V.rows()), qb,
+                                        calc_padded_bounding_box(B.V)).max_depth_m;
+  }
+  EXPECT_GT(rest_depth[0] + rest_depth[1], 1e-3);  // the rest meshes overlap
+  // The rest pose (q = 0) reproduces the rest meshes: no growth.
+  State state = make_state(model);
+  state.q = VecX::Zero(1);
+  forward(model, state);
+  for (int m = 0; m < 2; ++m) EXPECT_LE(state.muscles[m].max_muscle_overlap_growth_m, 1e-9) << m;
+  // Surfaces moved by hand towards (and away from) the other muscle by 3 mm.
+  double largest_growth = 0.0;
+  for (double shift_m : {-0.003, 0.003}) {
+    for (int m = 0; m < 2; ++m) {
+      const TriMesh& A = model.muscles[m].rest_mesh;
+      const Vec3 towards =
+          (model.muscles[1 - m].rest_mesh.V.colwise().mean() - A.V.colwise().mean()).transpose().normalized();
+      state.muscles[m].surface = (A.V.rowwise() + shift_m * towards.transpose()).eval();
+      state.muscles[1 - m].surface = model.muscles[1 - m].rest_mesh.V;
+      calc_muscle_overlaps(model, state);
+      const MuscleFrame& mf = state.muscles[m];
+      EXPECT_EQ(mf.max_muscle_overlap_growth_m, std::max(0.0, mf.max_muscle_overlap_m - rest_depth[m]))
+          << "shift " << shift_m << " muscle " << m;
+      if (shift_m < 0.0) {
+        EXPECT_EQ(mf.max_muscle_overlap_growth_m, 0.0) << m;
+      }
+      largest_growth = std::max(largest_growth, mf.max_muscle_overlap_growth_m);
+    }
+  }
+  EXPECT_GT(largest_growth, 1e-3);  // moving 3 mm closer deepens the overlap by millimetres
+}

@@ -64,7 +64,7 @@ namespace fascicle {
 // activation, musculotendon_length_m, fiber_length_m, norm_fiber_length, pennation_rad,
 // tendon_length_m, tendon_force_N, active_fiber_force_N, passive_fiber_force_N, volume_m3,
 // relative_volume_change, max_bone_penetration_m, max_muscle_overlap_m, mean_fibre_length_m,
-// mean_pennation_rad. NaN where not computed.
+// mean_pennation_rad, max_muscle_overlap_growth_m. NaN where not computed.
 const std::vector<std::string>& get_muscle_metric_names();
 std::vector<double> get_muscle_metrics(const Muscle& muscle, const MuscleFrame& frame);
 

@@ -51,6 +51,9 @@ MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, c
 struct MuscleOverlapCache {
   std::vector<SurfaceGraph> graph;                 // per muscle: edge graph of its rest triangles
   std::vector<std::unique_ptr<MeshQuery>> query;   // per muscle: query of its latest measured surface
+  // Per ordered pair (a, b), at [a * #muscles + b]: the depth of a's rest-mesh vertices inside b's
+  // rest mesh (0 when their rest boxes do not meet). A function of the Model, measured once.
+  std::vector<double> rest_depth;
 };
 
 }  // namespace fascicle

@@ -35,6 +35,9 @@ struct MuscleFrame {
   double relative_volume_change = nan;  // volume / rest volume − 1
   double max_bone_penetration_m = nan;  // deepest surface point inside a bone, beyond rest contact
   double max_muscle_overlap_m = nan;    // deepest surface point inside another muscle
+  // Over the other muscles B: max(0, depth of this muscle's vertices inside B now − the same at
+  // the rest pose (the rest meshes)): the overlap a pair gained beyond the input's own.
+  double max_muscle_overlap_growth_m = nan;
 };
 
 struct State {
@@ -66,7 +69,8 @@ void calc_action_lines(const Model& model, State& state);
 void calc_forces(const Model& model, State& state);
 // Requires Stage::forces. Muscle surfaces by each muscle's representation, in parallel; then
 // the muscle-muscle overlap of every pair of surfaces whose bounding boxes meet
-// (MuscleFrame::max_muscle_overlap_m, 0 for a muscle that overlaps none).
+// (MuscleFrame::max_muscle_overlap_m, 0 for a muscle that overlaps none) and its growth per ordered
+// pair beyond the pair's depth at the rest pose (MuscleFrame::max_muscle_overlap_growth_m).
 void calc_muscle_geometry(const Model& model, State& state);
 // The overlap part of calc_muscle_geometry (surfaces must be computed).
 void calc_muscle_overlaps(const Model& model, State& state);
