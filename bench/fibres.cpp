@@ -117,6 +117,26 @@ void BM_HarmonicTraceVolumeSeeds(benchmark::State& state) {
 }
 BENCHMARK(BM_HarmonicTraceVolumeSeeds)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
+// The plain field's default since session 7 (decompose_muscle): 4 x as many volume seeds traced,
+// 100 fibres chosen by farthest-point order of their shapes. Argument: tet quality, factor.
+void BM_HarmonicTraceVolumeCandidates(benchmark::State& state) {
+  const Attachments areas = find_end_attachments(mg());
+  HarmonicOptions opt;
+  opt.tets.max_radius_edge_ratio = state.range(0) ? 2.0 : 0.0;
+  const HarmonicField field = calc_harmonic_field(mg(), areas, opt);
+  for (auto _ : state) {
+    FibreSet f = trace_harmonic_fibres(field, areas.origin,
+                                       {.count = 100,
+                                        .resolution = 16,
+                                        .seeding = TraceOptions::Seeding::volume,
+                                        .candidate_factor = static_cast<int>(state.range(1))});
+    benchmark::DoNotOptimize(f);
+  }
+}
+BENCHMARK(BM_HarmonicTraceVolumeCandidates)
+    ->ArgsProduct({{0, 1}, {2, 4}})
+    ->Unit(benchmark::kMillisecond);
+
 // Validation: one decomposition per muscle, method and template; counters carry the results.
 // Counters shared by the validation benchmarks: mean fibre length and its ratio to Ward et al.
 // 2009, mean pennation, and (when a tracts file is given) the DTI direction deviation.
@@ -481,6 +501,50 @@ void BM_DtiPennationSweep(benchmark::State& state) {
 }
 BENCHMARK(BM_DtiPennationSweep)
     ->ArgsProduct({{5, 6}, {0, 1}, {5, 10, 15, 20, 25, 30}})
+    ->Iterations(1)
+    ->Unit(benchmark::kMillisecond);
+
+// The tracts' own consistency, a floor for any field compared with them: each half of the
+// tracts (even / odd lines) compared with the other half by the same measure as the fibres
+// (compare_directions: every tract segment against the nearest point of the other half).
+void BM_DtiTractFloor(benchmark::State& state) {
+  const char* file = state.range(0) == 0 ? "bolsterlee_dti/tracts_MG.txt" : "bolsterlee_dti/tracts_TA.txt";
+  const FibreSet tracts = read_tracts(data / file, 1e-3);
+  FibreSet even, odd;
+  for (std::size_t i = 0; i < tracts.size(); ++i) (i % 2 ? odd : even).fibres.push_back(tracts.fibres[i]);
+  DirectionDeviation a, b;
+  for (auto _ : state) {
+    a = compare_directions(odd, even);
+    b = compare_directions(even, odd);
+  }
+  state.counters["tracts"] = static_cast<double>(tracts.size());
+  state.counters["odd_vs_even_deg"] = a.mean_rad * 180 / M_PI;
+  state.counters["even_vs_odd_deg"] = b.mean_rad * 180 / M_PI;
+  state.counters["sd_deg"] = a.stddev_rad * 180 / M_PI;
+  state.SetLabel(state.range(0) == 0 ? "MG" : "TA");
+}
+BENCHMARK(BM_DtiTractFloor)->Arg(0)->Arg(1)->Iterations(1)->Unit(benchmark::kMillisecond);
+
+// DTI and fibre length of the plain harmonic field (default end regions) with the volume seeds
+// alone (factor 1, the session-6 default) and with fibres chosen among 4 x candidates (the
+// session-7 default). Arguments: case (5 MG, 6 TA), factor.
+void BM_DtiHarmonicCandidates(benchmark::State& state) {
+  const ValidationCase& c = validation_cases[state.range(0)];
+  const TriMesh muscle = read_mesh(data / c.mesh, LengthUnit::millimetre);
+  const Attachments areas = find_end_attachments(muscle);
+  DecomposeOptions opt;
+  opt.method = FibreMethod::harmonic;
+  opt.count = 100;
+  opt.resolution = 16;
+  opt.harmonic_candidate_factor = static_cast<int>(state.range(1));
+  Decomposition d;
+  for (auto _ : state) d = decompose_muscle(muscle, areas, opt);
+  const FibreAnalysis a = analyse_fibres(muscle, areas, d.fibres);
+  report_validation(state, a, c.ward_m, data / c.tracts, d.fibres);
+  state.SetLabel(std::string(c.name) + " factor " + std::to_string(state.range(1)));
+}
+BENCHMARK(BM_DtiHarmonicCandidates)
+    ->ArgsProduct({{5, 6}, {1, 4}})
     ->Iterations(1)
     ->Unit(benchmark::kMillisecond);
 
