@@ -13,6 +13,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 namespace fascicle {
 
@@ -26,49 +27,102 @@ namespace {
 // over i: every t_i sums in column order whatever the vector width). Backward (Lᵀ x = y): row
 // j's dot product over i > j with four partial sums (i mod 4) combined as (s0 + s1) + (s2 + s3),
 // then the tail in order, so the generic and the AVX2 clone give the same bits.
-[[gnu::always_inline]] inline void supernode_forward_body(const double* Lx, int nsrow, int nscol,
-                                                          double* __restrict t0,
-                                                          double* __restrict t1) {
-  for (int j = 0; j < nscol; ++j) {
+// Forward solve of one supernode for NR (1 or 2) right-hand sides t[0..NR). Columns are taken four
+// at a time (the small triangle first, then every row below updated by the four columns in
+// column order): each t_i still sums in column order, but is loaded and stored once per four
+// columns.
+template <int NR>
+[[gnu::always_inline]] inline void supernode_forward_nr(const double* Lx, int nsrow, int nscol,
+                                                        double* const* t) {
+  int j = 0;
+  for (; j + 4 <= nscol; j += 4) {
+    const double* __restrict c0 = Lx + static_cast<std::ptrdiff_t>(j) * nsrow;
+    const double* __restrict c1 = c0 + nsrow;
+    const double* __restrict c2 = c1 + nsrow;
+    const double* __restrict c3 = c2 + nsrow;
+    double y[NR][4];
+    for (int r = 0; r < NR; ++r) {
+      double* tr = t[r];
+      const double y0 = tr[j] / c0[j];
+      tr[j] = y0;
+      tr[j + 1] -= c0[j + 1] * y0;
+      tr[j + 2] -= c0[j + 2] * y0;
+      tr[j + 3] -= c0[j + 3] * y0;
+      const double y1 = tr[j + 1] / c1[j + 1];
+      tr[j + 1] = y1;
+      tr[j + 2] -= c1[j + 2] * y1;
+      tr[j + 3] -= c1[j + 3] * y1;
+      const double y2 = tr[j + 2] / c2[j + 2];
+      tr[j + 2] = y2;
+      tr[j + 3] -= c2[j + 3] * y2;
+      const double y3 = tr[j + 3] / c3[j + 3];
+      tr[j + 3] = y3;
+      y[r][0] = y0;
+      y[r][1] = y1;
+      y[r][2] = y2;
+      y[r][3] = y3;
+    }
+    for (int r = 0; r < NR; ++r) {
+      double* __restrict tr = t[r];
+      const double y0 = y[r][0], y1 = y[r][1], y2 = y[r][2], y3 = y[r][3];
+      for (int i = j + 4; i < nsrow; ++i)
+        tr[i] = (((tr[i] - c0[i] * y0) - c1[i] * y1) - c2[i] * y2) - c3[i] * y3;
+    }
+  }
+  for (; j < nscol; ++j) {
     const double* __restrict col = Lx + static_cast<std::ptrdiff_t>(j) * nsrow;
-    const double d = col[j];
-    const double y0 = t0[j] / d;
-    t0[j] = y0;
-    if (t1) {
-      const double y1 = t1[j] / d;
-      t1[j] = y1;
-      for (int i = j + 1; i < nsrow; ++i) {
-        t0[i] -= col[i] * y0;
-        t1[i] -= col[i] * y1;
-      }
-    } else {
-      for (int i = j + 1; i < nsrow; ++i) t0[i] -= col[i] * y0;
+    for (int r = 0; r < NR; ++r) {
+      double* __restrict tr = t[r];
+      const double yj = tr[j] / col[j];
+      tr[j] = yj;
+      for (int i = j + 1; i < nsrow; ++i) tr[i] -= col[i] * yj;
     }
   }
 }
-[[gnu::always_inline]] inline double dot4(const double* __restrict a, const double* __restrict b,
-                                          int begin, int end) {
-  double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+[[gnu::always_inline]] inline void supernode_forward_body(const double* Lx, int nsrow, int nscol,
+                                                          double* t0, double* t1) {
+  double* t[2] = {t0, t1};
+  if (t1) supernode_forward_nr<2>(Lx, nsrow, nscol, t);
+  else supernode_forward_nr<1>(Lx, nsrow, nscol, t);
+}
+// Four-lane partial sums (lane k: i ≡ begin + k mod 4) combined as (s0 + s1) + (s2 + s3), then
+// the tail in order: GCC's vector extension gives the same lanes on SSE2 and AVX2.
+typedef double V4d __attribute__((vector_size(32)));
+template <int NR>
+[[gnu::always_inline]] inline void dot4_nr(const double* __restrict a, double* const* b, int begin,
+                                           int end, double* out) {
+  V4d s[NR];
+  for (int r = 0; r < NR; ++r) s[r] = V4d{0.0, 0.0, 0.0, 0.0};
   int i = begin;
   for (; i + 4 <= end; i += 4) {
-    s0 += a[i] * b[i];
-    s1 += a[i + 1] * b[i + 1];
-    s2 += a[i + 2] * b[i + 2];
-    s3 += a[i + 3] * b[i + 3];
+    V4d av, bv;
+    std::memcpy(&av, a + i, sizeof av);
+    for (int r = 0; r < NR; ++r) {
+      std::memcpy(&bv, b[r] + i, sizeof bv);
+      s[r] += av * bv;
+    }
   }
-  double s = (s0 + s1) + (s2 + s3);
-  for (; i < end; ++i) s += a[i] * b[i];
-  return s;
+  for (int r = 0; r < NR; ++r) {
+    double sum = (s[r][0] + s[r][1]) + (s[r][2] + s[r][3]);
+    for (int k = i; k < end; ++k) sum += a[k] * b[r][k];
+    out[r] = sum;
+  }
 }
-[[gnu::always_inline]] inline void supernode_backward_body(const double* Lx, int nsrow, int nscol,
-                                                           double* __restrict t0,
-                                                           double* __restrict t1) {
+template <int NR>
+[[gnu::always_inline]] inline void supernode_backward_nr(const double* Lx, int nsrow, int nscol,
+                                                         double* const* t) {
   for (int j = nscol - 1; j >= 0; --j) {
     const double* __restrict col = Lx + static_cast<std::ptrdiff_t>(j) * nsrow;
-    const double d = col[j];
-    t0[j] = (t0[j] - dot4(col, t0, j + 1, nsrow)) / d;
-    if (t1) t1[j] = (t1[j] - dot4(col, t1, j + 1, nsrow)) / d;
+    double d[NR];
+    dot4_nr<NR>(col, t, j + 1, nsrow, d);
+    for (int r = 0; r < NR; ++r) t[r][j] = (t[r][j] - d[r]) / col[j];
   }
+}
+[[gnu::always_inline]] inline void supernode_backward_body(const double* Lx, int nsrow, int nscol,
+                                                           double* t0, double* t1) {
+  double* t[2] = {t0, t1};
+  if (t1) supernode_backward_nr<2>(Lx, nsrow, nscol, t);
+  else supernode_backward_nr<1>(Lx, nsrow, nscol, t);
 }
 __attribute__((target("avx2"))) void supernode_forward_avx2(const double* Lx, int nsrow, int nscol,
                                                             double* t0, double* t1) {
