@@ -387,6 +387,8 @@ BENCHMARK(BM_ThicknessConsistency)
 // Also the mean angle per fifth of the tract segments along the principal axis (proximal first).
 void BM_DtiThicknessPennation(benchmark::State& state) {
   const ArchitectureCase& c = architecture_cases[state.range(0)];
+  // Optional third argument: the angle scaled by range(2) / 100 (BM_DtiHeldOutScale).
+  const double scale = state.range(2) > 0 ? static_cast<double>(state.range(2)) / 100.0 : 1.0;
   // Variant: 0 template pennate, 1 pennate field (angle to the line of action), 2 pennate field
   // with the angle to the aponeurosis level sets (HarmonicOptions::pennation_reference).
   const bool harmonic = state.range(1) >= 1;
@@ -402,7 +404,7 @@ void BM_DtiThicknessPennation(benchmark::State& state) {
   }
   const double t = calc_face_thickness(muscle, ao);
   const double crossing = c.architecture == Architecture::bipennate ? 0.5 * t : t;
-  const double alpha = std::asin(std::min(1.0, crossing / c.ward_m));
+  const double alpha = scale * std::asin(std::min(1.0, crossing / c.ward_m));
   ao.pennation_rad = alpha;
   DecomposeOptions opt;
   opt.method = harmonic ? FibreMethod::harmonic : FibreMethod::template_map;
@@ -455,7 +457,14 @@ void BM_DtiThicknessPennation(benchmark::State& state) {
                                                          : " pennate-field"));
 }
 BENCHMARK(BM_DtiThicknessPennation)
-    ->ArgsProduct({{5, 6}, {0, 1, 2}})
+    ->ArgsProduct({{5, 6}, {0, 1, 2}, {0}})
+    ->Iterations(1)
+    ->Unit(benchmark::kMillisecond);
+// Held-out check of a tract-chosen correction: the thickness-derived angle scaled by 0.85 ... 1.45;
+// the scale is chosen on the MG (case 5) and tested on the TA (case 6), never the other way.
+BENCHMARK(BM_DtiThicknessPennation)
+    ->Name("BM_DtiHeldOutScale")
+    ->ArgsProduct({{5, 6}, {1, 2}, {85, 100, 115, 130, 145}})
     ->Iterations(1)
     ->Unit(benchmark::kMillisecond);
 
