@@ -1054,6 +1054,9 @@ void build_start_grid(MeshQuery::Bvh& bvh) {
   }
   constexpr unsigned kNone = std::numeric_limits<unsigned>::max();
   bvh.grid_vertex.assign(cells, kNone);
+  // The distance of each cell's current vertex to the cell centre (the same value offer would
+  // recompute, so the choices are unchanged).
+  std::vector<double> grid_d2(cells, std::numeric_limits<double>::infinity());
   const int nx = bvh.grid_n[0], ny = bvh.grid_n[1], nz = bvh.grid_n[2];
   const auto centre_of = [&](int i, int j, int k) {
     return Vec3(bvh.grid_lo.x() + (i + 0.5) * cell, bvh.grid_lo.y() + (j + 0.5) * cell,
@@ -1065,9 +1068,13 @@ void build_start_grid(MeshQuery::Bvh& bvh) {
   // Offers vertex v to cell (i, j, k): kept if nearer to its centre than the current one.
   const auto offer = [&](int i, int j, int k, unsigned v) {
     if (v == kNone) return;
-    unsigned& current = bvh.grid_vertex[cell_index(i, j, k)];
-    const Vec3 c = centre_of(i, j, k);
-    if (current == kNone || bvh.vertex_distance2(v, c) < bvh.vertex_distance2(current, c)) current = v;
+    const std::size_t cell = cell_index(i, j, k);
+    unsigned& current = bvh.grid_vertex[cell];
+    const double d2 = bvh.vertex_distance2(v, centre_of(i, j, k));
+    if (current == kNone || d2 < grid_d2[cell]) {
+      current = v;
+      grid_d2[cell] = d2;
+    }
   };
   for (unsigned v = 0; v < num_welded; ++v) {
     const Vec3 x(bvh.vertex_xyz[3 * v], bvh.vertex_xyz[3 * v + 1], bvh.vertex_xyz[3 * v + 2]);
@@ -1430,13 +1437,23 @@ void update_welded_positions(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
   // made once, by make_neighbour_blocks).
   constexpr unsigned L = MeshQuery::Bvh::kNeighbourLanes;
   const auto num_welded = static_cast<unsigned>(bvh.welded_source.size());
+  const double* xyz = bvh.vertex_xyz.data();
+  const unsigned* adjacent = bvh.adjacent.data();
+  const unsigned* adjacent_start = bvh.adjacent_start.data();
+  float* blocks = bvh.neighbour_xyz.data();
+  const unsigned* block_start = bvh.neighbour_block_start.data();
   for (unsigned v = 0; v < num_welded; ++v) {
-    float* block = bvh.neighbour_xyz.data() + 3 * L * static_cast<std::size_t>(bvh.neighbour_block_start[v]);
-    for (unsigned k = bvh.adjacent_start[v]; k < bvh.adjacent_start[v + 1]; ++k) {
-      const unsigned j = k - bvh.adjacent_start[v];
-      float* lane = block + 3 * L * (j / L) + j % L;
-      const double* x = bvh.vertex_xyz.data() + 3 * static_cast<std::size_t>(bvh.adjacent[k]);
-      for (unsigned c = 0; c < 3; ++c) lane[c * L] = static_cast<float>(x[c]);
+    float* block = blocks + 3 * L * static_cast<std::size_t>(block_start[v]);
+    const unsigned begin = adjacent_start[v], degree = adjacent_start[v + 1] - begin;
+    for (unsigned first = 0; first < degree; first += L, block += 3 * L) {
+      const unsigned count = std::min(L, degree - first);
+      const unsigned* neighbours = adjacent + begin + first;
+      for (unsigned j = 0; j < count; ++j) {
+        const double* x = xyz + 3 * static_cast<std::size_t>(neighbours[j]);
+        block[j] = static_cast<float>(x[0]);
+        block[L + j] = static_cast<float>(x[1]);
+        block[2 * L + j] = static_cast<float>(x[2]);
+      }
     }
   }
 }
