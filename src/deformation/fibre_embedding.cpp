@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <numeric>
 
@@ -113,7 +114,10 @@ bool add_triangle_weights(const Triangles& F, Eigen::Index f, const MvcScratch& 
   return false;
 }
 
-// Mean-value coordinates of x (normalised). Most triangles use the closed form of Ju, Schaefer and
+// Adds the unnormalised mean-value weights of x over the triangles of `mesh` to w (#V, zero on
+// entry). Returns true when x lies on a vertex or triangle (within eps): w then holds the final,
+// normalised coordinates (that vertex, or the triangle's barycentric coordinates) and nothing else.
+// Most triangles use the closed form of Ju, Schaefer and
 // Warren (2005, section 3.2): with unit directions u_i from x to the corners, the mean vector of
 // the triangle's spherical image is m = 1/2 sum_i theta_i n_i (theta_i the arc opposite corner i,
 // n_i the unit normal u_{i+1} x u_{i+2} / |.| of the plane through x and the opposite edge) and the
@@ -130,11 +134,9 @@ bool add_triangle_weights(const Triangles& F, Eigen::Index f, const MvcScratch& 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__SANITIZE_ADDRESS__)
 __attribute__((target_clones("avx512f", "avx2", "default")))
 #endif
-VecX calc_mean_value_coordinates(const TriMesh& mesh, const EdgeTable& table, const Vec3& x, MvcScratch& s) {
+bool accumulate_mean_value_weights(const TriMesh& mesh, const EdgeTable& table, const Vec3& x, double eps,
+                                   MvcScratch& s, VecX& w) {
   const Eigen::Index n = mesh.V.rows();
-  const double scale = (mesh.V.colwise().maxCoeff() - mesh.V.colwise().minCoeff()).norm();
-  const double eps = 1e-12 * scale;
-  VecX w = VecX::Zero(n);
   const auto nu = static_cast<std::size_t>(n);
   s.d.resize(nu);
   s.ux.resize(nu);
@@ -157,8 +159,9 @@ VecX calc_mean_value_coordinates(const TriMesh& mesh, const EdgeTable& table, co
   }
   for (std::size_t j = 0; j < nu; ++j)
     if (d[j] < eps) {  // x is a vertex
+      w.setZero();
       w[static_cast<Eigen::Index>(j)] = 1.0;
-      return w;
+      return true;
     }
   for (std::size_t j = 0; j < nu; ++j) {
     ux[j] /= d[j];
@@ -237,13 +240,21 @@ VecX calc_mean_value_coordinates(const TriMesh& mesh, const EdgeTable& table, co
   }
   for (std::size_t f = 0; f < nfaces; ++f) {
     if (robust[f]) {
-      if (add_triangle_weights(mesh.F, static_cast<Eigen::Index>(f), s, w)) return w;  // x on this triangle
+      if (add_triangle_weights(mesh.F, static_cast<Eigen::Index>(f), s, w)) return true;  // x on this triangle
       continue;
     }
     w[F0[f]] += contribution[3 * f];
     w[F1[f]] += contribution[3 * f + 1];
     w[F2[f]] += contribution[3 * f + 2];
   }
+  return false;
+}
+
+// Mean-value coordinates of x with respect to the whole mesh (normalised).
+VecX calc_mean_value_coordinates(const TriMesh& mesh, const EdgeTable& table, const Vec3& x, MvcScratch& s) {
+  const double scale = (mesh.V.colwise().maxCoeff() - mesh.V.colwise().minCoeff()).norm();
+  VecX w = VecX::Zero(mesh.V.rows());
+  if (accumulate_mean_value_weights(mesh, table, x, 1e-12 * scale, s, w)) return w;
   const double sum = w.sum();
   if (!(std::abs(sum) > 0.0) || !std::isfinite(sum))
     throw_numerical("mean-value coordinates undefined (point far outside or degenerate surface)");
@@ -282,6 +293,235 @@ std::vector<std::pair<int, double>> truncate_affine(const TriMesh& mesh, const V
   return out;
 }
 
+// The triangles of a surface in spatially compact clusters, for far-field sums.
+//
+// The mean-value normaliser is an integral over the surface: for a closed triangle mesh the
+// weights of the corners of triangle T add up to
+//     sum_i w_i,T = integral over T of n . (p - x) / |p - x|^4 dA(p)
+// (the continuous coordinates of Ju et al. 2005 weight a surface point by 1/|p - x| per unit solid
+// angle, and dw = n . (p - x) / |p - x|^3 dA). For a cluster C of triangles whose centre c is far
+// from x compared with its radius, the integral of the vector kernel g(y) = y / |y|^4 over C is
+// expanded about y0 = c - x to second order:
+//     sum_T a_T . g(y0) + sum_T a_T^T J(y0) dc_T + 1/2 sum_T H(y0)[a_T, S_T],
+// with a_T = area_T n_T, dc_T = centroid_T - c, S_T = (1/area_T) integral over T of (p - c)(p - c)^T
+// dA, J and H the first and second derivatives of g. The moments N = sum a_T, M = sum a_T dc_T^T and
+// Q_ikl = sum_T a_T,i S_T,kl are exact sums per cluster (computed once), so the remainder is the
+// third-order term of the expansion, O((radius / |y0|)^3) relative to the cluster's contribution.
+struct FaceCluster {
+  TriMesh local;              // the cluster's triangles over its own vertices
+  EdgeTable table;            // of `local`
+  std::vector<int> vertex;    // local vertex -> surface vertex
+  std::vector<int> faces_at;  // per local vertex: the cluster's triangles that use it
+  Vec3 centre = Vec3::Zero();
+  double radius = 0.0;        // largest distance from the centre to a corner
+  Vec3 N = Vec3::Zero();
+  Mat3 M = Mat3::Zero();
+  std::array<Mat3, 3> Q;      // Q[i](k, l) (zeroed by make_clustered_surface)
+  Vec3 P = Vec3::Zero();      // P_l = sum_i Q_iil
+  Vec3 T = Vec3::Zero();      // T_i = sum_k Q_ikk
+};
+
+struct ClusteredSurface {
+  std::vector<FaceCluster> clusters;
+  std::vector<int> valence;  // per surface vertex: triangles that use it
+};
+
+// Clusters of about `size` consecutive triangles in Morton order of their centroids.
+ClusteredSurface make_clustered_surface(const TriMesh& mesh, int size) {
+  ClusteredSurface out;
+  const Eigen::Index nf = mesh.F.rows();
+  out.valence.assign(static_cast<std::size_t>(mesh.V.rows()), 0);
+  for (Eigen::Index f = 0; f < nf; ++f)
+    for (int i = 0; i < 3; ++i) ++out.valence[static_cast<std::size_t>(mesh.F(f, i))];
+  const Vec3 lo = mesh.V.colwise().minCoeff().transpose();
+  const Vec3 extent = (mesh.V.colwise().maxCoeff().transpose() - lo).cwiseMax(1e-300);
+  const auto spread = [](std::uint64_t v) {  // 21 bits -> every third bit
+    v &= 0x1fffff;
+    v = (v | v << 32) & 0x1f00000000ffffULL;
+    v = (v | v << 16) & 0x1f0000ff0000ffULL;
+    v = (v | v << 8) & 0x100f00f00f00f00fULL;
+    v = (v | v << 4) & 0x10c30c30c30c30c3ULL;
+    v = (v | v << 2) & 0x1249249249249249ULL;
+    return v;
+  };
+  std::vector<std::pair<std::uint64_t, int>> order(static_cast<std::size_t>(nf));
+  for (Eigen::Index f = 0; f < nf; ++f) {
+    const Vec3 c = (mesh.V.row(mesh.F(f, 0)) + mesh.V.row(mesh.F(f, 1)) + mesh.V.row(mesh.F(f, 2))).transpose() / 3.0;
+    std::uint64_t code = 0;
+    for (int k = 0; k < 3; ++k) {
+      const double t = std::clamp((c[k] - lo[k]) / extent[k], 0.0, 1.0);
+      code |= spread(static_cast<std::uint64_t>(t * 2097151.0)) << k;
+    }
+    order[static_cast<std::size_t>(f)] = {code, static_cast<int>(f)};
+  }
+  std::sort(order.begin(), order.end());
+  std::vector<int> local_of(static_cast<std::size_t>(mesh.V.rows()), -1);
+  for (std::size_t start = 0; start < order.size(); start += static_cast<std::size_t>(size)) {
+    const std::size_t end = std::min(order.size(), start + static_cast<std::size_t>(size));
+    FaceCluster c;
+    c.local.F.resize(static_cast<Eigen::Index>(end - start), 3);
+    for (std::size_t k = start; k < end; ++k)
+      for (int i = 0; i < 3; ++i) {
+        const int g = mesh.F(order[k].second, i);
+        if (local_of[static_cast<std::size_t>(g)] < 0) {
+          local_of[static_cast<std::size_t>(g)] = static_cast<int>(c.vertex.size());
+          c.vertex.push_back(g);
+          c.faces_at.push_back(0);
+        }
+        const int l = local_of[static_cast<std::size_t>(g)];
+        c.local.F(static_cast<Eigen::Index>(k - start), i) = l;
+        ++c.faces_at[static_cast<std::size_t>(l)];
+      }
+    c.local.V.resize(static_cast<Eigen::Index>(c.vertex.size()), 3);
+    for (std::size_t l = 0; l < c.vertex.size(); ++l) {
+      c.local.V.row(static_cast<Eigen::Index>(l)) = mesh.V.row(c.vertex[l]);
+      local_of[static_cast<std::size_t>(c.vertex[l])] = -1;
+    }
+    c.table = make_edge_table(c.local.F);
+    for (Mat3& q : c.Q) q.setZero();
+    // moments about the area-weighted centroid
+    double area = 0.0;
+    Vec3 weighted = Vec3::Zero();
+    for (Eigen::Index f = 0; f < c.local.F.rows(); ++f) {
+      const Vec3 a = c.local.V.row(c.local.F(f, 0)), b = c.local.V.row(c.local.F(f, 1)), d = c.local.V.row(c.local.F(f, 2));
+      const double A = 0.5 * (b - a).cross(d - a).norm();
+      area += A;
+      weighted += A * (a + b + d) / 3.0;
+    }
+    c.centre = area > 0.0 ? Vec3(weighted / area) : Vec3(c.local.V.colwise().mean().transpose());
+    for (Eigen::Index l = 0; l < c.local.V.rows(); ++l)
+      c.radius = std::max(c.radius, (c.local.V.row(l).transpose() - c.centre).norm());
+    for (Eigen::Index f = 0; f < c.local.F.rows(); ++f) {
+      const Vec3 d0 = c.local.V.row(c.local.F(f, 0)).transpose() - c.centre;
+      const Vec3 d1 = c.local.V.row(c.local.F(f, 1)).transpose() - c.centre;
+      const Vec3 d2 = c.local.V.row(c.local.F(f, 2)).transpose() - c.centre;
+      const Vec3 a = 0.5 * (d1 - d0).cross(d2 - d0);  // area times outward normal
+      const Vec3 sum = d0 + d1 + d2;
+      // (1/area) integral over the triangle of (p - c)(p - c)^T = (sum_i d_i d_i^T + s s^T) / 12
+      const Mat3 S = (d0 * d0.transpose() + d1 * d1.transpose() + d2 * d2.transpose() + sum * sum.transpose()) / 12.0;
+      c.N += a;
+      c.M += a * (sum / 3.0).transpose();
+      for (int i = 0; i < 3; ++i) c.Q[static_cast<std::size_t>(i)] += a[i] * S;
+    }
+    for (int i = 0; i < 3; ++i) {
+      c.P += c.Q[static_cast<std::size_t>(i)].row(i).transpose();
+      c.T[i] = c.Q[static_cast<std::size_t>(i)].trace();
+    }
+    out.clusters.push_back(std::move(c));
+  }
+  return out;
+}
+
+// The cluster's share of the mean-value normaliser at x, by the expansion above (y = centre - x).
+double calc_far_field_sum(const FaceCluster& c, const Vec3& y) {
+  const double s = y.squaredNorm();
+  const double inv2 = 1.0 / (s * s), inv3 = inv2 / s, inv4 = inv3 / s;
+  const double zeroth = c.N.dot(y) * inv2;
+  const double first = c.M.trace() * inv2 - 4.0 * y.dot(c.M * y) * inv3;
+  const double cubic = y[0] * y.dot(c.Q[0] * y) + y[1] * y.dot(c.Q[1] * y) + y[2] * y.dot(c.Q[2] * y);
+  const double second = -2.0 * (2.0 * c.P + c.T).dot(y) * inv3 + 12.0 * cubic * inv4;
+  return zeroth + first + second;
+}
+
+// Work arrays of one thread for calc_clustered_weights.
+struct ClusterScratch {
+  MvcScratch mvc;
+  VecX local_w;
+  VecX w;                     // per surface vertex (zero between calls)
+  std::vector<int> covered;   // per surface vertex: near triangles that use it (zero between calls)
+  std::vector<int> touched;
+};
+
+// The k largest mean-value coordinates of x (then made affine by truncate_affine's correction):
+// clusters within `ratio` radii of x are summed exactly (closed form), the others enter only the
+// normaliser, by their far-field expansion. Only vertices all of whose triangles are near are
+// candidates. Returns false when fewer than k vertices are candidates (the caller then uses the
+// exact coordinates). x on a vertex or triangle gives that vertex or the barycentric coordinates.
+bool calc_clustered_weights(const TriMesh& mesh, const ClusteredSurface& cs, const Vec3& x, double eps,
+                            double ratio, int k, ClusterScratch& s,
+                            std::vector<std::pair<int, double>>& out) {
+  s.w.resize(mesh.V.rows());
+  if (s.covered.size() != static_cast<std::size_t>(mesh.V.rows())) {
+    s.w.setZero();
+    s.covered.assign(static_cast<std::size_t>(mesh.V.rows()), 0);
+  }
+  s.touched.clear();
+  out.clear();
+  double far = 0.0;
+  bool on_surface = false;
+  for (const FaceCluster& c : cs.clusters) {
+    const Vec3 y = c.centre - x;
+    const double reach = ratio * c.radius;
+    if (y.squaredNorm() > reach * reach) {
+      far += calc_far_field_sum(c, y);
+      continue;
+    }
+    s.local_w.setZero(c.local.V.rows());
+    if (accumulate_mean_value_weights(c.local, c.table, x, eps, s.mvc, s.local_w)) {
+      // x on a vertex or triangle of this cluster: those coordinates are the answer
+      for (int g : s.touched) {
+        s.w[g] = 0.0;
+        s.covered[static_cast<std::size_t>(g)] = 0;
+      }
+      s.touched.clear();
+      for (Eigen::Index l = 0; l < s.local_w.size(); ++l)
+        if (s.local_w[l] != 0.0) out.emplace_back(c.vertex[static_cast<std::size_t>(l)], s.local_w[l]);
+      std::sort(out.begin(), out.end());
+      on_surface = true;
+      break;
+    }
+    for (std::size_t l = 0; l < c.vertex.size(); ++l) {
+      const int g = c.vertex[l];
+      if (s.covered[static_cast<std::size_t>(g)] == 0) s.touched.push_back(g);
+      s.covered[static_cast<std::size_t>(g)] += c.faces_at[l];
+      s.w[g] += s.local_w[static_cast<Eigen::Index>(l)];
+    }
+  }
+  if (on_surface) return true;
+  double sum = far;
+  for (int g : s.touched) sum += s.w[g];
+  for (int g : s.touched) {
+    if (s.covered[static_cast<std::size_t>(g)] == cs.valence[static_cast<std::size_t>(g)])
+      out.emplace_back(g, s.w[g]);
+    s.w[g] = 0.0;
+    s.covered[static_cast<std::size_t>(g)] = 0;
+  }
+  if (!(std::abs(sum) > 0.0) || !std::isfinite(sum))
+    throw_numerical("mean-value coordinates undefined (point far outside or degenerate surface)");
+  if (static_cast<int>(out.size()) < k) return false;
+  // the k largest |w| (ties: the lower vertex), in vertex order, normalised
+  std::nth_element(out.begin(), out.begin() + (k - 1), out.end(), [](const auto& a, const auto& b) {
+    return std::abs(a.second) > std::abs(b.second) || (std::abs(a.second) == std::abs(b.second) && a.first < b.first);
+  });
+  out.resize(static_cast<std::size_t>(k));
+  std::sort(out.begin(), out.end());
+  for (auto& [g, v] : out) v /= sum;
+  return true;
+}
+
+// Corrects the coordinates `kept` (vertex, weight) of x with the minimum-norm change so that
+// sum w = 1 and sum w_j v_j = x (as truncate_affine does after its selection).
+std::vector<std::pair<int, double>> correct_affine(const TriMesh& mesh, const Vec3& x,
+                                                   const std::vector<std::pair<int, double>>& kept) {
+  const int m = static_cast<int>(kept.size());
+  VecX wk(m);
+  Eigen::MatrixXd A(4, m);
+  double scale = 0.0;
+  for (int j = 0; j < m; ++j) scale = std::max(scale, (mesh.V.row(kept[j].first).transpose() - x).norm());
+  if (!(scale > 0.0)) return kept;  // x is the one kept vertex
+  for (int j = 0; j < m; ++j) {
+    wk[j] = kept[j].second;
+    A.block<3, 1>(0, j) = (mesh.V.row(kept[j].first).transpose() - x) / scale;
+    A(3, j) = 1.0;
+  }
+  const Vec4 r = Vec4(0, 0, 0, 1) - A * wk;
+  wk += A.completeOrthogonalDecomposition().solve(r);
+  std::vector<std::pair<int, double>> out;
+  for (int j = 0; j < m; ++j)
+    if (wk[j] != 0.0) out.emplace_back(kept[j].first, wk[j]);
+  return out;
+}
+
 }  // namespace
 
 VecX calc_mean_value_coordinates(const TriMesh& mesh, const Vec3& x) {
@@ -302,11 +542,26 @@ FibreEmbedding embed_fibres(const SurfaceBinding& binding, const std::vector<Poi
   }
   std::vector<std::vector<std::pair<int, double>>> rows(points.size());
   const EdgeTable table = make_edge_table(rest_surface.F);
+  // The far-field sums pay off only with truncation and enough clusters.
+  const int k = options.max_weights;
+  const bool clustered = options.far_field_ratio > 0.0 && k > 0 && options.cluster_size > 0 &&
+                         rest_surface.F.rows() >= 16 * static_cast<Eigen::Index>(options.cluster_size) &&
+                         k < rest_surface.V.rows();
+  const ClusteredSurface clusters =
+      clustered ? make_clustered_surface(rest_surface, options.cluster_size) : ClusteredSurface{};
+  const double eps = 1e-12 * (rest_surface.V.colwise().maxCoeff() - rest_surface.V.colwise().minCoeff()).norm();
   // in blocks of points, each with its own work arrays (results do not depend on the blocking)
   constexpr std::size_t kBlock = 16;
   parallel_for((points.size() + kBlock - 1) / kBlock, [&](std::size_t block) {
     MvcScratch scratch;
+    ClusterScratch cluster_scratch;
+    std::vector<std::pair<int, double>> kept;
     for (std::size_t p = block * kBlock; p < std::min(points.size(), (block + 1) * kBlock); ++p) {
+      if (clustered && calc_clustered_weights(rest_surface, clusters, points[p], eps, options.far_field_ratio, k,
+                                              cluster_scratch, kept)) {
+        rows[p] = correct_affine(rest_surface, points[p], kept);
+        continue;
+      }
       const VecX w = calc_mean_value_coordinates(rest_surface, table, points[p], scratch);
       rows[p] = truncate_affine(rest_surface, points[p], w, options.max_weights);
     }

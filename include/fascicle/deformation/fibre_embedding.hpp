@@ -20,6 +20,12 @@ namespace fascicle {
 
 struct FibreEmbeddingOptions {
   int max_weights = 256;  // kept coordinates per fibre point; 0 keeps all (dense)
+  // With truncation (max_weights > 0), triangle clusters whose centre lies farther from the point
+  // than far_field_ratio times their radius enter only the normalising sum of the coordinates, by
+  // a second-order far-field expansion (their vertices are never among the kept ones); the nearer
+  // ones are summed exactly. 0: every triangle exactly (O(#F) per point). docs/deformation.md.
+  double far_field_ratio = 4.0;
+  int cluster_size = 32;  // triangles per cluster (Morton order of the centroids)
 };
 
 struct FibreEmbedding {
