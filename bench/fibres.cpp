@@ -389,6 +389,9 @@ void BM_DtiThicknessPennation(benchmark::State& state) {
   const ArchitectureCase& c = architecture_cases[state.range(0)];
   // Optional third argument: the angle scaled by range(2) / 100 (BM_DtiHeldOutScale).
   const double scale = state.range(2) > 0 ? static_cast<double>(state.range(2)) / 100.0 : 1.0;
+  // Optional fourth argument 1: the angle varies with the local crossing distance for Ward's
+  // fibre length (HarmonicOptions::fibre_length_m; harmonic variants only).
+  const bool local_angle = state.range(3) == 1;
   // Variant: 0 template pennate, 1 pennate field (angle to the line of action), 2 pennate field
   // with the angle to the aponeurosis level sets (HarmonicOptions::pennation_reference).
   const bool harmonic = state.range(1) >= 1;
@@ -419,6 +422,7 @@ void BM_DtiThicknessPennation(benchmark::State& state) {
     areas = find_aponeurosis_attachments(muscle, ao);
     if (c.aponeurosis) set_interior_aponeurosis(muscle, apo, areas);
     opt.harmonic.pennation_rad = alpha;
+    if (local_angle) opt.harmonic.fibre_length_m = c.ward_m;
     if (to_aponeurosis)
       opt.harmonic.pennation_reference = HarmonicOptions::PennationReference::aponeurosis;
   } else {
@@ -457,14 +461,22 @@ void BM_DtiThicknessPennation(benchmark::State& state) {
                                                          : " pennate-field"));
 }
 BENCHMARK(BM_DtiThicknessPennation)
-    ->ArgsProduct({{5, 6}, {0, 1, 2}, {0}})
+    ->ArgsProduct({{5, 6}, {0, 1, 2}, {0}, {0}})
     ->Iterations(1)
     ->Unit(benchmark::kMillisecond);
 // Held-out check of a tract-chosen correction: the thickness-derived angle scaled by 0.85 ... 1.45;
 // the scale is chosen on the MG (case 5) and tested on the TA (case 6), never the other way.
 BENCHMARK(BM_DtiThicknessPennation)
     ->Name("BM_DtiHeldOutScale")
-    ->ArgsProduct({{5, 6}, {1, 2}, {85, 100, 115, 130, 145}})
+    ->ArgsProduct({{5, 6}, {1, 2}, {85, 100, 115, 130, 145}, {0}})
+    ->Iterations(1)
+    ->Unit(benchmark::kMillisecond);
+
+// Pennate fields whose angle follows the local crossing distance for Ward's fibre length
+// (planimetric model, sin a = t / L; not fitted to the tracts).
+BENCHMARK(BM_DtiThicknessPennation)
+    ->Name("BM_DtiLocalPennation")
+    ->ArgsProduct({{5, 6}, {1, 2}, {0}, {1}})
     ->Iterations(1)
     ->Unit(benchmark::kMillisecond);
 

@@ -179,21 +179,43 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
                                   "the origin end region", "the insertion end region");
     Points3 tet_along, vertex_along;
     calc_field_gradients(field.tets, field.u_along, tet_along, vertex_along);
-    const double ca = std::cos(options.pennation_rad), sa = std::sin(options.pennation_rad);
+    const double ca_fixed = std::cos(options.pennation_rad);
+    const double sa_fixed = std::sin(options.pennation_rad);
+    if (options.fibre_length_m < 0.0) throw_usage("the fibre length must not be negative");
     const bool to_aponeurosis =
         options.pennation_reference == HarmonicOptions::PennationReference::aponeurosis;
     // Transmural direction for the aponeurosis reference: with both faces of a unipennate muscle
     // known, the gradient of their potential (0 on -x, 1 on +x; level sets parallel to both
     // aponeuroses, as the transmural potential of Bayer et al. 2012); otherwise grad(u).
     Points3 tet_across = field.tet_gradient, vertex_across = field.vertex_gradient;
-    if (to_aponeurosis && !areas.face_minus.empty() && !areas.face_plus.empty()) {
+    // The crossing potential for a local angle (fibre_length_m): the faces' potential when both
+    // faces are known (unipennate), else u itself (0 on the faces, 1 on a central sheet).
+    Points3 tet_crossing = field.tet_gradient, vertex_crossing = field.vertex_gradient;
+    const bool faces_known = !areas.face_minus.empty() && !areas.face_plus.empty();
+    if ((to_aponeurosis || options.fibre_length_m > 0.0) && faces_known) {
       const VecX u_t = solve_laplace(field.tets, areas.face_minus, areas.face_plus,
                                      "the -x aponeurosis face", "the +x aponeurosis face");
-      calc_field_gradients(field.tets, u_t, tet_across, vertex_across);
+      calc_field_gradients(field.tets, u_t, tet_crossing, vertex_crossing);
+      if (to_aponeurosis) {
+        tet_across = tet_crossing;
+        vertex_across = vertex_crossing;
+      }
     }
-    const auto blend = [&](Points3& out, const Points3& across, const Points3& along) {
+    const auto blend = [&](Points3& out, const Points3& across, const Points3& along,
+                           const Points3& crossing) {
       for (Eigen::Index i = 0; i < out.rows(); ++i) {
         const Vec3 gl = along.row(i), gt = across.row(i);
+        double ca = ca_fixed, sa = sa_fixed;
+        if (options.fibre_length_m > 0.0) {
+          // Planimetric model with one fibre length L: a fibre crossing the local distance t
+          // between its aponeuroses makes sin(a) = t / L; t = 1 / |grad of the crossing
+          // potential| (exact between parallel faces).
+          const double g = Vec3(crossing.row(i)).norm();
+          if (g > 0.0) {
+            sa = std::min(1.0, 1.0 / (g * options.fibre_length_m));
+            ca = std::sqrt(std::max(0.0, 1.0 - sa * sa));
+          }
+        }
         if (to_aponeurosis) {
           // The angle to the level set of u: e_n = grad(u) / |.|, e_a = grad(u_along) within it.
           if (!(gt.norm() > 0.0)) continue;
@@ -214,8 +236,8 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
         out.row(i) = d.transpose();
       }
     };
-    blend(field.tet_gradient, tet_across, tet_along);
-    blend(field.vertex_gradient, vertex_across, vertex_along);
+    blend(field.tet_gradient, tet_across, tet_along, tet_crossing);
+    blend(field.vertex_gradient, vertex_across, vertex_along, vertex_crossing);
   }
   return field;
 }

@@ -34,7 +34,8 @@ double median(std::vector<double> v) {
 Decomposition decompose_slab_pennate(
     Architecture architecture, double alpha,
     HarmonicOptions::PennationReference reference =
-        HarmonicOptions::PennationReference::line_of_action) {
+        HarmonicOptions::PennationReference::line_of_action,
+    double fibre_length = 0.0) {
   AponeurosisOptions o;
   o.architecture = architecture;
   o.pennation_rad = alpha;
@@ -47,6 +48,7 @@ Decomposition decompose_slab_pennate(
   opt.resolution = 12;
   opt.harmonic.pennation_rad = alpha;
   opt.harmonic.pennation_reference = reference;
+  opt.harmonic.fibre_length_m = fibre_length;
   return decompose_muscle(m, a, opt);
 }
 
@@ -238,4 +240,35 @@ TEST(PennateRise, MappedCrossingGivesTheTargetAngleInABox) {
     EXPECT_NEAR(std::acos(std::abs(chord.normalized().dot(ez))), alpha, 0.2 * M_PI / 180);
     EXPECT_NEAR(calc_polyline_length(P), 0.016 / std::sin(alpha), 0.5e-3);
   }
+}
+
+// Local angle from one fibre length (HarmonicOptions::fibre_length_m): in the elliptic slab the
+// faces are t(y) = 16 mm sqrt(1 - (y / 20 mm)^2) apart, so a fibre of length L = 32 mm makes
+// asin(t(y) / L) with the axis: 30 degrees in the middle, less towards the thin edges. The fixed
+// angle (10 degrees) is only the fallback.
+TEST(PennateHarmonicField, LocalAngleFollowsTheCrossingDistance) {
+  const double L = 0.032;
+  const Decomposition d = decompose_slab_pennate(Architecture::unipennate, 10.0 * M_PI / 180,
+                                                 HarmonicOptions::PennationReference::line_of_action, L);
+  ASSERT_GE(d.fibres.size(), 55u);
+  std::vector<double> centre_error, centre, edge;
+  for (const Points3& P : d.fibres.fibres) {
+    const Eigen::Index k = P.rows() / 2;
+    const Vec3 t = (P.row(k) - P.row(k - 1)).normalized();
+    const double angle = std::acos(std::abs(t.z()));
+    const double y = 0.5 * (P(k, 1) + P(k - 1, 1));
+    const double thickness = 0.016 * std::sqrt(std::max(0.0, 1.0 - (y / 0.02) * (y / 0.02)));
+    if (std::abs(y) < 0.006) {
+      centre.push_back(angle);
+      centre_error.push_back(std::abs(angle - std::asin(thickness / L)));
+    }
+    if (std::abs(y) > 0.013) edge.push_back(angle);
+  }
+  ASSERT_GE(centre.size(), 5u);
+  ASSERT_GE(edge.size(), 5u);
+  std::printf("local angle: centre median %.2f deg (|error| median %.2f deg), edge median %.2f deg\n",
+              median(centre) * 180 / M_PI, median(centre_error) * 180 / M_PI,
+              median(edge) * 180 / M_PI);
+  EXPECT_LT(median(centre_error), 2.0 * M_PI / 180);
+  EXPECT_LT(median(edge), median(centre) - 3.0 * M_PI / 180);
 }

@@ -56,6 +56,12 @@ struct HarmonicOptions {
   // grad(u_along) normal to e_n.
   enum class PennationReference { line_of_action, aponeurosis };
   PennationReference pennation_reference = PennationReference::line_of_action;
+  // > 0 (with pennation_rad > 0): the angle varies through the muscle as a planimetric model with
+  // one fibre length L predicts, sin(a) = t / L, t the local distance the fibre crosses = 1 /
+  // |grad| of the crossing potential (the faces' potential of unipennate aponeurosis areas, else
+  // u: 0 on the faces, 1 on a central sheet); pennation_rad is then only the fallback where that
+  // gradient vanishes. 0: one angle everywhere.
+  double fibre_length_m = 0.0;
 };
 
 // Tetrahedralises `muscle` and solves the field for the given attachment areas. An interior
