@@ -23,10 +23,10 @@ namespace {
 // only its application is ours). A supernode holds columns k1 .. k1 + nscol of L as a dense
 // nsrow x nscol column-major block whose row indices are rows[0 .. nsrow), the first nscol of them
 // k1 .. k1 + nscol. t0, t1: the right-hand sides gathered at those rows (t1 may be null).
-// Forward (L y = b): column by column, y_j = t_j / L_jj, then t_i −= L_ij y_j below it (an axpy
-// over i: every t_i sums in column order whatever the vector width). Backward (Lᵀ x = y): row
-// j's dot product over i > j with four partial sums (i mod 4) combined as (s0 + s1) + (s2 + s3),
-// then the tail in order, so the generic and the AVX2 clone give the same bits.
+// Forward (L y = b): y_j = t_j / L_jj, then t_i −= L_ij y_j below it, in column order for every
+// t_i whatever the vector width. Backward (Lᵀ x = y): row j's dot product over i > j with four
+// partial sums combined as (s0 + s1) + (s2 + s3), then the tail in order. No FMA anywhere, so the
+// generic and the AVX2 clones give the same bits.
 // Forward solve of one supernode for NR (1 or 2) right-hand sides t[0..NR). Columns are taken four
 // at a time (the small triangle first, then every row below updated by the four columns in
 // column order): each t_i still sums in column order, but is loaded and stored once per four
