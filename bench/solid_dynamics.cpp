@@ -387,7 +387,7 @@ BENCHMARK(BM_SoleusContractionVariant)->Args({20, 1})->Args({20, 3})->Args({20, 
     // refactorisation policy: kept over up to 200 steps, or with no step cap (refreshed only when
     // Newton slows, the step size changes or a step fails)
     ->Args({200, 0})->Args({200, 1})->Args({1000000, 0})->Args({1000000, 1})->Args({1000000, 2})
-    ->Args({1000000, 3})->Args({1000000, 1280})->Args({1000000, 1281})
+    ->Args({1000000, 3})->Args({1000000, 5})->Args({1000000, 1280})->Args({1000000, 1281})
     ->Iterations(1)->Unit(benchmark::kSecond);
 
 }  // namespace
