@@ -27,6 +27,7 @@ std::vector<double> calc_fibre_stretches(const SolidDynamicsModel& m, const Poin
 // its points, their weighted stresses, the span forces and the dense span tangent.
 struct SpanScratch {
   std::vector<double> p0, p1, p2, Fs, S, f0, f1, f2, Kl;
+  std::vector<double> gp;  // one point's g columns padded to a multiple of 4 (tangent kernel)
 };
 // Kept by the solver so that force evaluations inside a step allocate nothing.
 struct ForceScratch {

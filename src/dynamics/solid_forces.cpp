@@ -177,19 +177,22 @@ Mat9 calc_material_tangent(const SolidDynamicsSpec& s, const QuadraturePoint& q,
 
 // Dense accumulation of one quadrature point's stiffness over its span's support (c points):
 //   K_ab(i, k) += w Σ_jl g_a[j] ∂P_ij/∂F_kl g_b[l],
-// stored Kl[((b·3 + k)·3 + i)·c + a] so that the innermost loop runs over a, contiguous in both
+// stored Kl[((b·3 + k)·3 + i)·ld + a] so that the innermost loop runs over a, contiguous in both
 // Kl and the g columns (gcols[j·c + a] = g_a[j]), and vectorises. With an increasing support
 // only a >= b is formed (the lower blocks). D: ∂P/∂F, 9 x 9 column-major (see materials.hpp).
-[[gnu::always_inline]] inline void accumulate_tangent_body(const double* gcols, int c,
+// ld: the padded length (a multiple of 4, >= c) of the g columns (zero beyond c) and of Kl's
+// columns, so that every a-loop runs whole vectors from a multiple of 4 (the entries a < b and
+// a >= c it also forms are never scattered; every formed entry sums in the same order as before).
+[[gnu::always_inline]] inline void accumulate_tangent_body(const double* gcols, int c, int ld,
                                                            const double* D, double w,
                                                            bool lower_only, double* Kl) {
   const double* g0 = gcols;
-  const double* g1 = gcols + c;
-  const double* g2 = gcols + 2 * c;
+  const double* g1 = gcols + ld;
+  const double* g2 = gcols + 2 * ld;
   for (int b = 0; b < c; ++b) {
     const double wb0 = w * g0[b], wb1 = w * g1[b], wb2 = w * g2[b];
-    double* dst_b = Kl + static_cast<std::ptrdiff_t>(9) * c * b;
-    const int a0 = lower_only ? b : 0;
+    double* dst_b = Kl + static_cast<std::ptrdiff_t>(9) * ld * b;
+    const int a0 = lower_only ? (b & ~3) : 0;
     for (int k = 0; k < 3; ++k)
       for (int i = 0; i < 3; ++i) {
         // T_b(i + 3 j, k) = w Σ_l D(i + 3 j, k + 3 l) g_b[l]
@@ -198,9 +201,9 @@ Mat9 calc_material_tangent(const SolidDynamicsSpec& s, const QuadraturePoint& q,
           const int r = i + 3 * j;
           t[j] = D[r + 9 * k] * wb0 + D[r + 9 * (k + 3)] * wb1 + D[r + 9 * (k + 6)] * wb2;
         }
-        double* dst = dst_b + static_cast<std::ptrdiff_t>(3 * k + i) * c;
+        double* dst = dst_b + static_cast<std::ptrdiff_t>(3 * k + i) * ld;
         const double t0 = t[0], t1 = t[1], t2 = t[2];
-        for (int a = a0; a < c; ++a) dst[a] += g0[a] * t0 + g1[a] * t1 + g2[a] * t2;
+        for (int a = a0; a < ld; ++a) dst[a] += g0[a] * t0 + g1[a] * t1 + g2[a] * t2;
       }
   }
 }
@@ -277,15 +280,15 @@ void span_forces_generic(const double* G, int c, int ncol, const double* S, doub
   span_forces_body(G, c, ncol, S, f0, f1, f2);
 }
 
-__attribute__((target("avx2"))) void accumulate_tangent_avx2(const double* gcols, int c,
+__attribute__((target("avx2"))) void accumulate_tangent_avx2(const double* gcols, int c, int ld,
                                                                   const double* D, double w,
                                                                   bool lower_only, double* Kl) {
-  accumulate_tangent_body(gcols, c, D, w, lower_only, Kl);
+  accumulate_tangent_body(gcols, c, ld, D, w, lower_only, Kl);
 }
 
-void accumulate_tangent_generic(const double* gcols, int c, const double* D, double w,
+void accumulate_tangent_generic(const double* gcols, int c, int ld, const double* D, double w,
                                 bool lower_only, double* Kl) {
-  accumulate_tangent_body(gcols, c, D, w, lower_only, Kl);
+  accumulate_tangent_body(gcols, c, ld, D, w, lower_only, Kl);
 }
 
 
@@ -384,7 +387,11 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
     const bool need_fdot = !(lambda_start && step_h > 0.0) && V.rows() == n && activation > 0.0;
     if (need_fdot) calc_span_gradients(m, V, k, scv);
     sc.S.resize(static_cast<std::size_t>(9) * npts);
-    if (K) sc.Kl.assign(static_cast<std::size_t>(9) * c * c, 0.0);
+    const int ld = (c + 3) & ~3;  // padded support length for the tangent kernel
+    if (K) {
+      sc.Kl.assign(static_cast<std::size_t>(9) * c * ld, 0.0);
+      sc.gp.assign(static_cast<std::size_t>(3) * ld, 0.0);
+    }
     for (int i = 0; i < npts; ++i) {
       const int qi = m.group_points[gp0 + i];
       const QuadraturePoint& q = m.quadrature[qi];
@@ -423,8 +430,10 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
               }
       }
       const double* gcols = G.data() + static_cast<std::ptrdiff_t>(3 * i) * c;
+      for (int j = 0; j < 3; ++j)
+        std::copy(gcols + j * c, gcols + (j + 1) * c, sc.gp.data() + static_cast<std::ptrdiff_t>(j) * ld);
       (avx2 ? accumulate_tangent_avx2 : accumulate_tangent_generic)(
-          gcols, c, D.data(), q.weight_m3, m.group_ascending[k] != 0, sc.Kl.data());
+          sc.gp.data(), c, ld, D.data(), q.weight_m3, m.group_ascending[k] != 0, sc.Kl.data());
     }
     // f_a = −Σ_q w_q P_q g_qa for the whole span.
     sc.f0.assign(c, 0.0);
@@ -445,11 +454,11 @@ void calc_forces_into(const SolidDynamicsModel& m, const Points3& P, const Point
       const int Jn = idx[pr.b];
       const int deg = m.block_ptr[Jn + 1] - m.block_ptr[Jn];
       double* dst = K + find_value_position(m, Jn, pr.block, 0, 0);
-      const double* src = sc.Kl.data() + static_cast<std::size_t>(9) * c * pr.b + pr.a;
+      const double* src = sc.Kl.data() + static_cast<std::size_t>(9) * ld * pr.b + pr.a;
       for (int kk = 0; kk < 3; ++kk, dst += 3 * deg) {
-        dst[0] += src[(3 * kk + 0) * c];
-        dst[1] += src[(3 * kk + 1) * c];
-        dst[2] += src[(3 * kk + 2) * c];
+        dst[0] += src[(3 * kk + 0) * ld];
+        dst[1] += src[(3 * kk + 1) * ld];
+        dst[2] += src[(3 * kk + 2) * ld];
       }
     }
   }
