@@ -74,7 +74,8 @@ Decomposition decompose_muscle(const TriMesh& muscle, const Attachments& areas,
                                                    : options.harmonic_seeding,
                                     .seed_by_flux = options.harmonic_seed_by_flux,
                                     .area_seed_fraction = options.harmonic_area_seed_fraction,
-                                    .candidate_factor = options.harmonic_candidate_factor},
+                                    .candidate_factor = options.harmonic_candidate_factor,
+                                    .area_candidate_factor = options.harmonic_area_candidate_factor},
                                    &areas.insertion);
   // Every point inside the surface: the streamline points lie in the tets, but resampled points
   // on a chord across a concave stretch of surface, or ends cut at the boundary, can fall a few

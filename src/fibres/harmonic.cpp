@@ -595,17 +595,52 @@ FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea&
   };
   if (options.seeding == TraceOptions::Seeding::volume && options.candidate_factor > 1) {
     // Oversampled volume seeds, every candidate traced; the fibres are chosen by farthest-point
-    // order of their shapes (docs/fibres.md), candidates with both ends on their areas first.
+    // order of their shapes (docs/fibres.md), candidates with both ends on their areas and
+    // without a kink first.
     const int n = options.count;
     const std::vector<detail::TetSample> seeds =
         detail::sample_tets(m.V, m.T, n * options.candidate_factor);
-    std::vector<Points3> cand(seeds.size());
-    std::vector<char> reached(seeds.size(), 0);
-    parallel_for(seeds.size(), [&](std::size_t i) {
+    // Optional area candidates: seeds on each area's surface (stratified), traced to the other.
+    const int per_area = insertion && !insertion->triangles.empty()
+                             ? std::max(0, options.area_candidate_factor) * n
+                             : 0;
+    const std::size_t nv = seeds.size();
+    std::vector<Points3> cand(nv + 2 * static_cast<std::size_t>(per_area));
+    std::vector<char> reached(cand.size(), 0);
+    parallel_for(nv, [&](std::size_t i) {
       bool r = false;
       cand[i] = join_both_ways(seeds[i].point, seeds[i].tet, &r);
       reached[i] = r;
     });
+    if (per_area > 0) {
+      const FaceKeys boundary = calc_boundary_faces(m);
+      const TriMesh& S = field.surface;
+      for (const bool at_origin : {true, false}) {
+        const AttachmentArea& area = at_origin ? origin : *insertion;
+        const std::vector<detail::WeightedTriangle> tris =
+            detail::make_area_weighted(S.V, S.F, area.triangles);
+        const std::vector<detail::TriangleSample> area_seeds = detail::sample_triangles(tris, per_area);
+        const std::size_t first = nv + (at_origin ? 0 : per_area);
+        parallel_for(area_seeds.size(), [&](std::size_t j) {
+          const detail::WeightedTriangle& tri = tris[area_seeds[j].piece];
+          const int tet = find_boundary_tet(boundary, S, tri.tag);
+          if (tet < 0) return;
+          const Vec3 inward =
+              -(tri.corner[1] - tri.corner[0]).cross(tri.corner[2] - tri.corner[0]).normalized();
+          const Vec3 p_surface = area_seeds[j].point;
+          bool r = false;
+          const Points3 P =
+              (at_origin ? forward : backward).trace(p_surface + 1e-3 * edge * inward, tet, &r);
+          if (P.rows() < 2) return;
+          Points3 full(P.rows() + 1, 3);
+          full.row(0) = p_surface.transpose();
+          full.bottomRows(P.rows()) = P;
+          if (!at_origin) full = full.colwise().reverse().eval();
+          cand[first + j] = resample_polyline(full, options.resolution);
+          reached[first + j] = r;
+        });
+      }
+    }
     constexpr int kShapePoints = 5;
     Eigen::MatrixXd shape(3 * kShapePoints, static_cast<Eigen::Index>(cand.size()));
     std::vector<int> first_tier, second_tier;
@@ -613,7 +648,16 @@ FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea&
       if (cand[i].rows() < 2) continue;
       const Points3 Q = resample_polyline(cand[i], kShapePoints);
       for (int k = 0; k < kShapePoints; ++k) shape.block<3, 1>(3 * k, i) = Q.row(k).transpose();
-      (reached[i] ? first_tier : second_tier).push_back(static_cast<int>(i));
+      // First tier: both ends on their targets and no kink (a turn over 45 degrees between
+      // neighbouring segments is a trace that slid along the surface or doubled back).
+      double max_turn_cos = 1.0;
+      for (Eigen::Index k = 1; k + 1 < cand[i].rows(); ++k) {
+        const Vec3 a = cand[i].row(k) - cand[i].row(k - 1), b = cand[i].row(k + 1) - cand[i].row(k);
+        if (a.norm() > 0.0 && b.norm() > 0.0)
+          max_turn_cos = std::min(max_turn_cos, a.normalized().dot(b.normalized()));
+      }
+      const bool smooth = max_turn_cos > std::cos(M_PI / 4);
+      (reached[i] && smooth ? first_tier : second_tier).push_back(static_cast<int>(i));
     }
     const std::vector<int> chosen = select_farthest(shape, first_tier, second_tier, n);
     for (std::size_t j = 0; j < chosen.size(); ++j) {

@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <string>
 
 using namespace fascicle;
@@ -184,6 +185,31 @@ TEST(HarmonicFibres, FarthestCandidatesCoverTheSectionEvenly) {
   const double seeds_only = largest_gap(1), chosen = largest_gap(4);
   EXPECT_GT(seeds_only, 1.5);
   EXPECT_LT(chosen, 1.2);
+  // With area candidates (100 on each cap) the fibres stay straight cap to cap and spread.
+  const FibreSet s = trace_harmonic_fibres(f, c.areas.origin,
+                                           {.count = 100,
+                                            .resolution = 11,
+                                            .seeding = TraceOptions::Seeding::volume,
+                                            .candidate_factor = 4,
+                                            .area_candidate_factor = 1},
+                                           &c.areas.insertion);
+  ASSERT_EQ(s.size(), 100u);
+  double worst = 0.0;
+  for (int i = -40; i <= 40; ++i)
+    for (int j = -40; j <= 40; ++j) {
+      const Vec2 p(r * i / 40.0, r * j / 40.0);
+      if (p.norm() > 0.95 * r) continue;
+      double best = 1e300;
+      for (const Points3& P : s.fibres) best = std::min(best, std::hypot(P(5, 0) - p.x(), P(5, 1) - p.y()));
+      worst = std::max(worst, best);
+    }
+  for (const Points3& P : s.fibres) {
+    EXPECT_NEAR(P(0, 2), h / 2, 1e-6);
+    EXPECT_NEAR(P(10, 2), -h / 2, 1e-6);
+    EXPECT_NEAR(calc_polyline_length(P), h, 1e-5);
+  }
+  std::printf("largest gap with area candidates %.2f sqrt(A/n)\n", worst / std::sqrt(M_PI * r * r / 100.0));
+  EXPECT_LT(worst / std::sqrt(M_PI * r * r / 100.0), 1.2);
 }
 
 TEST(AttachmentSamples, StratifiedAlongALongStrip) {

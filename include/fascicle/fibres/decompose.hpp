@@ -39,6 +39,7 @@ struct DecomposeOptions {
   double harmonic_area_seed_fraction = 0.0;  // TraceOptions::area_seed_fraction (volume seeding)
   // TraceOptions::candidate_factor (volume seeding; 4 since 2026-11-24, docs/fibres.md).
   int harmonic_candidate_factor = 4;
+  int harmonic_area_candidate_factor = 1;  // TraceOptions::area_candidate_factor (session 7)
 };
 
 struct Decomposition {

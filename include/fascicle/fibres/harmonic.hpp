@@ -99,6 +99,10 @@ struct TraceOptions {
   // end; fibres with both ends on their areas first; area_seed_fraction is then not used).
   // 1: the seeds themselves.
   int candidate_factor = 1;
+  // With candidate_factor > 1 and the insertion area given: this many times `count` seeds on
+  // each area's surface (stratified by area), traced to the other area, join the candidates (so
+  // the ends can reach the parts of the areas the flux hardly feeds, e.g. thin tips).
+  int area_candidate_factor = 0;
 };
 
 // Traces `count` fibres: seeds spread over the origin area's triangles (area-weighted R2
