@@ -137,6 +137,26 @@ BENCHMARK(BM_HarmonicTraceVolumeCandidates)
     ->ArgsProduct({{0, 1}, {2, 4}})
     ->Unit(benchmark::kMillisecond);
 
+// What decompose_muscle does for plain fields since session 7: 4 x volume candidates plus 100
+// candidates seeded on each area, kinked or unfinished traces last. Argument: tet quality.
+void BM_HarmonicTraceDefault(benchmark::State& state) {
+  const Attachments areas = find_end_attachments(mg());
+  HarmonicOptions opt;
+  opt.tets.max_radius_edge_ratio = state.range(0) ? 2.0 : 0.0;
+  const HarmonicField field = calc_harmonic_field(mg(), areas, opt);
+  for (auto _ : state) {
+    FibreSet f = trace_harmonic_fibres(field, areas.origin,
+                                       {.count = 100,
+                                        .resolution = 16,
+                                        .seeding = TraceOptions::Seeding::volume,
+                                        .candidate_factor = 4,
+                                        .area_candidate_factor = 1},
+                                       &areas.insertion);
+    benchmark::DoNotOptimize(f);
+  }
+}
+BENCHMARK(BM_HarmonicTraceDefault)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
 // Validation: one decomposition per muscle, method and template; counters carry the results.
 // Counters shared by the validation benchmarks: mean fibre length and its ratio to Ward et al.
 // 2009, mean pennation, and (when a tracts file is given) the DTI direction deviation.
@@ -547,8 +567,8 @@ void BM_DtiTractFloor(benchmark::State& state) {
 BENCHMARK(BM_DtiTractFloor)->Arg(0)->Arg(1)->Iterations(1)->Unit(benchmark::kMillisecond);
 
 // DTI and fibre length of the plain harmonic field (default end regions) with the volume seeds
-// alone (factor 1, the session-6 default) and with fibres chosen among 4 x candidates (the
-// session-7 default). Arguments: case (5 MG, 6 TA), factor.
+// alone (factor 1, the session-6 default) and with fibres chosen among 4 x volume candidates plus
+// area candidates (the session-7 default). Arguments: case (5 MG, 6 TA), factor.
 void BM_DtiHarmonicCandidates(benchmark::State& state) {
   const ValidationCase& c = validation_cases[state.range(0)];
   const TriMesh muscle = read_mesh(data / c.mesh, LengthUnit::millimetre);
@@ -558,6 +578,7 @@ void BM_DtiHarmonicCandidates(benchmark::State& state) {
   opt.count = 100;
   opt.resolution = 16;
   opt.harmonic_candidate_factor = static_cast<int>(state.range(1));
+  if (state.range(1) == 1) opt.harmonic_area_candidate_factor = 0;
   Decomposition d;
   for (auto _ : state) d = decompose_muscle(muscle, areas, opt);
   const FibreAnalysis a = analyse_fibres(muscle, areas, d.fibres);
