@@ -430,12 +430,13 @@ struct ClusterScratch {
   VecX w;                     // per surface vertex (zero between calls)
   std::vector<int> covered;   // per surface vertex: near triangles that use it (zero between calls)
   std::vector<int> touched;
+  std::vector<double> distance2;  // per surface vertex: squared distance to x
 };
 
 // The k largest mean-value coordinates of x (then made affine by truncate_affine's correction):
-// clusters within `ratio` radii of x are summed exactly (closed form), the others enter only the
-// normaliser, by their far-field expansion. Only vertices all of whose triangles are near are
-// candidates. Returns false when fewer than k vertices are candidates (the caller then uses the
+// clusters within `ratio` radii of x, or with a corner within twice the distance of x's k-th nearest
+// vertex, are summed exactly (closed form); the others enter only the normaliser, by their
+// far-field expansion. Only vertices all of whose triangles are near are candidates. Returns false when fewer than k vertices are candidates (the caller then uses the
 // exact coordinates). x on a vertex or triangle gives that vertex or the barycentric coordinates.
 bool calc_clustered_weights(const TriMesh& mesh, const ClusteredSurface& cs, const Vec3& x, double eps,
                             double ratio, int k, ClusterScratch& s,
@@ -447,11 +448,19 @@ bool calc_clustered_weights(const TriMesh& mesh, const ClusteredSurface& cs, con
   }
   s.touched.clear();
   out.clear();
+  // d_k: the distance of x's k-th nearest vertex. Every cluster with a corner within 2 d_k of x is
+  // near (so x's k nearest vertices, and any vertex up to 2 d_k away, have all their triangles
+  // summed exactly and are candidates).
+  s.distance2.resize(static_cast<std::size_t>(mesh.V.rows()));
+  for (Eigen::Index j = 0; j < mesh.V.rows(); ++j)
+    s.distance2[static_cast<std::size_t>(j)] = (mesh.V.row(j).transpose() - x).squaredNorm();
+  std::nth_element(s.distance2.begin(), s.distance2.begin() + (k - 1), s.distance2.end());
+  const double near_m = 2.0 * std::sqrt(s.distance2[static_cast<std::size_t>(k - 1)]);
   double far = 0.0;
   bool on_surface = false;
   for (const FaceCluster& c : cs.clusters) {
     const Vec3 y = c.centre - x;
-    const double reach = ratio * c.radius;
+    const double reach = std::max(ratio * c.radius, c.radius + near_m);
     if (y.squaredNorm() > reach * reach) {
       far += calc_far_field_sum(c, y);
       continue;

@@ -281,12 +281,12 @@ TEST(FibreEmbedding, FarFieldSumsMatchExactCoordinates) {
   solver.calc_frame(m.bend(M_PI / 3.0));
   for (int k : {64, 256}) {
     const FibreEmbedding exact = embed_fibres(b, fibres, {.max_weights = k, .far_field_ratio = 0.0});
-    for (double ratio : {2.0, 4.0}) {
+    for (double ratio : {2.0, 3.0, 4.0}) {
       const FibreEmbedding far = embed_fibres(b, fibres, {.max_weights = k, .far_field_ratio = ratio});
       const Eigen::MatrixXd W(far.weights);
       const double dp = max_distance(calc_embedded_fibres(exact, solver), calc_embedded_fibres(far, solver));
       std::printf("k %d, ratio %.0f: carried points differ by %.2f um\n", k, ratio, dp * 1e6);
-      EXPECT_LT(dp, ratio >= 4.0 ? 1e-5 : 1e-4) << k << " " << ratio;  // measured 4.1 / 1.0 um at ratio 4
+      EXPECT_LT(dp, ratio >= 4.0 ? 1e-5 : 1e-4) << k << " " << ratio;  // measured 4.1 / 1.75 um at ratio 4
       Points3 all(0, 3);
       for (const Points3& f : fibres) {
         all.conservativeResize(all.rows() + f.rows(), 3);

@@ -25,7 +25,7 @@ struct FibreEmbeddingOptions {
   // a second-order far-field expansion (their vertices are never among the kept ones); the nearer
   // ones are summed exactly. 0: every triangle exactly (O(#F) per point). docs/deformation.md.
   double far_field_ratio = 4.0;
-  int cluster_size = 32;  // triangles per cluster (Morton order of the centroids)
+  int cluster_size = 16;  // triangles per cluster (Morton order of the centroids)
 };
 
 struct FibreEmbedding {
