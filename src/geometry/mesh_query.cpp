@@ -222,13 +222,6 @@ struct MeshQuery::Bvh {
   std::vector<unsigned> ring_start;      // welded vertex i -> ring_slots[ring_start[i] ...)
   std::vector<unsigned> ring_slots;
   std::vector<unsigned> vertex_of_slot;  // slot -> welded vertex of its first corner
-  // The descent's copy of the adjacency: welded vertex v's neighbours adjacent[adjacent_start[v]
-  // ...] in blocks of kNeighbourLanes, each block their float positions as x, y, z rows of
-  // kNeighbourLanes (padding lanes +inf), blocks [neighbour_block_start[v], ...[v + 1]). One SIMD
-  // sequence then gives the distances to all neighbours of a vertex (usually one block).
-  static constexpr unsigned kNeighbourLanes = 8;
-  std::vector<unsigned> neighbour_block_start;
-  std::vector<float> neighbour_xyz;
   // Start vertices of queries without a hint: a uniform grid over the (enlarged) bounding box
   // whose cells hold a welded vertex near the cell centre (an approximate nearest vertex; the
   // descent corrects it). Points outside the grid use the nearest boundary cell.
@@ -474,60 +467,21 @@ inline bool test_slot(PointQueryState* q, unsigned t) {
 
 // Greedy descent over the welded vertices: move to the closest adjacent vertex while it is
 // strictly closer to p. Ends at a local minimum of the vertex distance (on a smooth surface usually
-// the nearest vertex), whose incident triangles then give a nearly exact upper bound. The distances
-// are compared in float (a heuristic: any vertex is a valid start, the seed bound is the final
-// vertex's exact double distance), all neighbours of a vertex at once from its neighbour blocks;
-// ties go to the first neighbour, so the path is the same on every machine.
+// the nearest vertex), whose incident triangles then give a nearly exact upper bound.
 unsigned descend(const MeshQuery::Bvh& bvh, const Vec3& p, unsigned v) {
-  constexpr unsigned L = MeshQuery::Bvh::kNeighbourLanes;
-  static_assert(L == 8, "two 4-lane halves");
-  const float px = static_cast<float>(p.x()), py = static_cast<float>(p.y()), pz = static_cast<float>(p.z());
-  const auto distance2 = [&](unsigned u) {
-    const double* x = bvh.vertex_xyz.data() + 3 * static_cast<std::size_t>(u);
-    const float dx = px - static_cast<float>(x[0]), dy = py - static_cast<float>(x[1]),
-                dz = pz - static_cast<float>(x[2]);
-    return dx * dx + dy * dy + dz * dz;
-  };
-  float best = distance2(v);
-#if defined(__SSE2__)
-  const __m128 px4 = _mm_set1_ps(px), py4 = _mm_set1_ps(py), pz4 = _mm_set1_ps(pz);
-#endif
+  double best = bvh.vertex_distance2(v, p);
   for (int step = 0; step < kMaxDescentSteps; ++step) {
-    unsigned next = std::numeric_limits<unsigned>::max();
-    const unsigned first_block = bvh.neighbour_block_start[v];
-    for (unsigned b = first_block; b < bvh.neighbour_block_start[v + 1]; ++b) {
-      const float* block = bvh.neighbour_xyz.data() + 3 * L * static_cast<std::size_t>(b);
-#if defined(__SSE2__)
-      const auto half = [&](unsigned o) {
-        const __m128 dx = _mm_sub_ps(px4, _mm_loadu_ps(block + o));
-        const __m128 dy = _mm_sub_ps(py4, _mm_loadu_ps(block + L + o));
-        const __m128 dz = _mm_sub_ps(pz4, _mm_loadu_ps(block + 2 * L + o));
-        return _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dx), _mm_mul_ps(dy, dy)), _mm_mul_ps(dz, dz));
-      };
-      const __m128 lo = half(0), hi = half(4);
-      __m128 m = _mm_min_ps(lo, hi);
-      m = _mm_min_ps(m, _mm_shuffle_ps(m, m, _MM_SHUFFLE(1, 0, 3, 2)));
-      m = _mm_min_ps(m, _mm_shuffle_ps(m, m, _MM_SHUFFLE(2, 3, 0, 1)));
-      const float smallest = _mm_cvtss_f32(m);
-      if (smallest < best) {
-        const unsigned lanes = static_cast<unsigned>(_mm_movemask_ps(_mm_cmpeq_ps(lo, m))) |
-                               (static_cast<unsigned>(_mm_movemask_ps(_mm_cmpeq_ps(hi, m))) << 4);
-        best = smallest;
-        next = bvh.adjacent_start[v] + L * (b - first_block) + static_cast<unsigned>(std::countr_zero(lanes));
+    unsigned next = v;
+    for (unsigned k = bvh.adjacent_start[v]; k < bvh.adjacent_start[v + 1]; ++k) {
+      const unsigned u = bvh.adjacent[k];
+      const double d2 = bvh.vertex_distance2(u, p);
+      if (d2 < best) {
+        best = d2;
+        next = u;
       }
-#else
-      for (unsigned k = 0; k < L; ++k) {
-        const float dx = px - block[k], dy = py - block[L + k], dz = pz - block[2 * L + k];
-        const float d2 = dx * dx + dy * dy + dz * dz;
-        if (d2 < best) {
-          best = d2;
-          next = bvh.adjacent_start[v] + L * (b - first_block) + k;
-        }
-      }
-#endif
     }
-    if (next == std::numeric_limits<unsigned>::max()) break;
-    v = bvh.adjacent[next];
+    if (next == v) break;
+    v = next;
   }
   return v;
 }
@@ -1411,50 +1365,11 @@ void refit_compact_tree(MeshQuery::Bvh& bvh) {
   }
 }
 
-// The layout of the descent's neighbour blocks (Bvh::neighbour_block_start), all lanes +inf
-// (padding lanes stay so; update_welded_positions fills the others).
-void make_neighbour_blocks(MeshQuery::Bvh& bvh) {
-  constexpr unsigned L = MeshQuery::Bvh::kNeighbourLanes;
-  const auto num_welded = static_cast<unsigned>(bvh.welded_source.size());
-  bvh.neighbour_block_start.resize(num_welded + 1);
-  bvh.neighbour_block_start[0] = 0;
-  for (unsigned v = 0; v < num_welded; ++v) {
-    const unsigned degree = bvh.adjacent_start[v + 1] - bvh.adjacent_start[v];
-    bvh.neighbour_block_start[v + 1] = bvh.neighbour_block_start[v] + (degree + L - 1) / L;
-  }
-  bvh.neighbour_xyz.assign(3 * L * static_cast<std::size_t>(bvh.neighbour_block_start[num_welded]),
-                           std::numeric_limits<float>::infinity());
-}
-
-// Positions of the welded vertices from the mesh (each welded vertex takes its first mesh vertex),
-// and their float copies in the neighbour blocks.
+// Positions of the welded vertices from the mesh (each welded vertex takes its first mesh vertex).
 void update_welded_positions(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
   bvh.vertex_xyz.resize(3 * bvh.welded_source.size());
   for (std::size_t i = 0; i < bvh.welded_source.size(); ++i) {
     for (int k = 0; k < 3; ++k) bvh.vertex_xyz[3 * i + static_cast<std::size_t>(k)] = mesh.V(bvh.welded_source[i], k);
-  }
-  // The neighbour blocks of the descent (float positions; their layout and +inf padding lanes are
-  // made once, by make_neighbour_blocks).
-  constexpr unsigned L = MeshQuery::Bvh::kNeighbourLanes;
-  const auto num_welded = static_cast<unsigned>(bvh.welded_source.size());
-  const double* xyz = bvh.vertex_xyz.data();
-  const unsigned* adjacent = bvh.adjacent.data();
-  const unsigned* adjacent_start = bvh.adjacent_start.data();
-  float* blocks = bvh.neighbour_xyz.data();
-  const unsigned* block_start = bvh.neighbour_block_start.data();
-  for (unsigned v = 0; v < num_welded; ++v) {
-    float* block = blocks + 3 * L * static_cast<std::size_t>(block_start[v]);
-    const unsigned begin = adjacent_start[v], degree = adjacent_start[v + 1] - begin;
-    for (unsigned first = 0; first < degree; first += L, block += 3 * L) {
-      const unsigned count = std::min(L, degree - first);
-      const unsigned* neighbours = adjacent + begin + first;
-      for (unsigned j = 0; j < count; ++j) {
-        const double* x = xyz + 3 * static_cast<std::size_t>(neighbours[j]);
-        block[j] = static_cast<float>(x[0]);
-        block[L + j] = static_cast<float>(x[1]);
-        block[2 * L + j] = static_cast<float>(x[2]);
-      }
-    }
   }
 }
 
@@ -1624,7 +1539,6 @@ MeshQuery::MeshQuery(const TriMesh& mesh, const MeshQueryOptions& options)
     }
 
   }
-  make_neighbour_blocks(bvh);
   update_welded_positions(bvh, mesh_);
   build_start_grid(bvh);
   if (bvh.compact) refit_compact_tree(bvh);

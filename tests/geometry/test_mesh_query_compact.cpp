@@ -195,11 +195,11 @@ TEST(MeshQueryCompact, DegenerateAndDuplicatedTrianglesAgainstBruteForce) {
   EXPECT_GT(duplicates, 10);  // ties between a triangle and its copy really occurred
 }
 
-// The seed's vertex descent compares distances in float, 8 neighbours at a time: cap centres of
-// valence 48 (six neighbour blocks), a mesh so far from the origin that float cannot tell its
-// vertices apart (the descent stops at once; the answer must not depend on it), and a cylinder
-// with its triangles shuffled (neighbours far apart in memory).
-TEST(MeshQueryCompact, FloatDescentOnHighValenceAndUnresolvableMeshes) {
+// The seed (vertex descent, then the traversal starting bottom-up from that vertex's leaf) on cap
+// centres of valence 48, on a mesh so far from the origin that float cannot tell its vertices
+// apart (the float boxes are then padded far beyond the mesh; the answer must not depend on it),
+// and on a cylinder with its triangles shuffled (neighbours far apart in the leaves).
+TEST(MeshQueryCompact, SeedOnHighValenceAndUnresolvableMeshes) {
   const TriMesh cylinder = make_cylinder(0.02, 0.08, 48, 3);
   check_compact(cylinder, 200, 21);
   TriMesh far = make_ellipsoid(Vec3(0.02, 0.01, 0.015), 2);
