@@ -129,7 +129,7 @@ TEST(SceneDemo, RunWritesReadableSeriesAndTables) {
   const Table csv = read_table(dir / "demo_muscles.csv");
   EXPECT_EQ(sto.rows(), 11);
   EXPECT_EQ(sto.labels, csv.labels);
-  EXPECT_EQ(sto.columns(), 4 * 15);
+  EXPECT_EQ(sto.columns(), 4 * 16);  // 16 metrics per muscle (get_muscle_metric_names)
   // The invariants of the surface-first representation at every frame, for every muscle: volume
   // to 0.01 % and no bone penetration beyond the rest-pose contact deeper than 0.5 mm.
   for (const auto& m : model.muscles) {
