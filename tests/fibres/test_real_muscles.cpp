@@ -94,15 +94,17 @@ double find_floor(const std::string& name, FibreMethod method, const std::string
   // Floors a little under the values measured on 2026-11-24 after volume seeding of the harmonic
   // streamlines, stratified area sampling, contact-speck removal and farthest-point parallel starts
   // (docs/fibres.md, "Quality invariants"); 18 of the 27 earlier entries met the targets then, and
-  // 4 more (soleus and VH TA harmonic origin spread, VH TA harmonic insertion spread, Bolsterlee
-  // TA harmonic insertion spread) since the harmonic fibres are chosen among volume and area
-  // candidates (session 7).
+  // 5 more (soleus and VH TA harmonic origin spread, VH TA harmonic insertion spread and coverage,
+  // Bolsterlee TA harmonic insertion spread) since the harmonic fibres are chosen among volume and
+  // area candidates (session 7). The VH TA's harmonic coverage meets the target (0.952) with
+  // little margin; it stays listed with a floor of 0.93 so that a last-digit difference in
+  // another build cannot flip the test.
   static const Shortfall known[] = {
       {"soleus", T, "coverage", 0.83},
       {"tibialis_anterior", T, "origin_spread", 0.72},
       {"tibialis_anterior", T, "coverage", 0.74},
       {"tibialis_anterior", T, "smooth", 0.50},
-      {"tibialis_anterior", H, "coverage", 0.90},
+      {"tibialis_anterior", H, "coverage", 0.93},
   };
   for (const Shortfall& k : known)
     if (name == k.name && method == k.method && metric == k.metric) return k.floor;

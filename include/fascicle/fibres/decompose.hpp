@@ -37,8 +37,8 @@ struct DecomposeOptions {
   TraceOptions::Seeding harmonic_seeding = TraceOptions::Seeding::volume;
   bool harmonic_seed_by_flux = false;  // level-set seeds by flux instead of area
   double harmonic_area_seed_fraction = 0.0;  // TraceOptions::area_seed_fraction (volume seeding)
-  // TraceOptions::candidate_factor (volume seeding; 4 since 2026-11-24, docs/fibres.md).
-  int harmonic_candidate_factor = 4;
+  // TraceOptions::candidate_factor (volume seeding; 8 since session 7, docs/fibres.md).
+  int harmonic_candidate_factor = 8;
   int harmonic_area_candidate_factor = 1;  // TraceOptions::area_candidate_factor (session 7)
 };
 
