@@ -117,8 +117,9 @@ void BM_HarmonicTraceVolumeSeeds(benchmark::State& state) {
 }
 BENCHMARK(BM_HarmonicTraceVolumeSeeds)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
-// The plain field's default since session 7 (decompose_muscle): 4 x as many volume seeds traced,
-// 100 fibres chosen by farthest-point order of their shapes. Argument: tet quality, factor.
+// Volume candidates only: factor x 100 volume seeds traced, 100 fibres chosen by farthest-point
+// order of their shapes (decompose_muscle adds area candidates: BM_HarmonicTraceDefault).
+// Arguments: tet quality, factor.
 void BM_HarmonicTraceVolumeCandidates(benchmark::State& state) {
   const Attachments areas = find_end_attachments(mg());
   HarmonicOptions opt;
