@@ -8,11 +8,13 @@
 #include "fascicle/core/parallel.hpp"
 #include "fascicle/deformation/mesh_operators.hpp"
 
+#include <Eigen/SVD>
 #include <cholmod.h>
 
 #include <algorithm>
 #include <cmath>
 #include <fmt/format.h>
+#include <array>
 #include <unordered_set>
 
 namespace fascicle {
@@ -268,16 +270,74 @@ struct PairCandidates {
   int builds = 0;                // since the solver was made (diagnostics)
 };
 
+// A display-surface contact: vertex v of muscle a against the point of triangle `triangle` of
+// muscle b's display surface with barycentric coordinates `barycentric` (the closest point when
+// detected). Its gap is (s_v - c) . n, n the triangle's current outward unit normal; it must stay
+// >= min_gap.
+struct SurfaceContact {
+  int a = -1, v = -1, b = -1, triangle = -1;
+  Vec3 barycentric = Vec3::Zero();
+  double min_gap = 0.0;
+};
+
+// A push's smooth displacement field around one display vertex: (particle, phi) pairs.
+struct PushKernel {
+  bool built = false;
+  std::vector<std::pair<int, double>> entries;
+};
+
+// Display-surface separation state (see FibresFirstOptions::separate_surfaces).
+struct SurfaceSeparation {
+  bool enabled = false;
+  std::vector<std::unique_ptr<MeshQuery>> query;  // per muscle: its current surface (null: none)
+  std::vector<Points3> surface;                   // per muscle: the vertices the query holds
+  // Per ordered muscle pair a * nm + b: per vertex of a, its signed gap to b's surface at rest
+  // (positive outside; empty when a's vertices are all farther than the margin from b at rest),
+  // and whether the pair is separated fully (its rest overlap is small) or keeps rest depths.
+  std::vector<VecX> rest_gap;
+  std::vector<char> resolved;
+  // Candidate list (Verlet): every (a, v, b) whose gap was below margin + skin at the last build.
+  std::vector<Points3> built_at;
+  std::vector<std::array<int, 3>> candidates;
+  bool valid = false;
+  std::vector<SurfaceContact> contacts;
+  std::unordered_set<long long> keys;
+  std::vector<std::vector<PushKernel>> kernels;  // per muscle, per display vertex
+  int builds = 0;
+};
+
+// Bone contacts, per particle: up to two (a particle where two bone surfaces come closer than
+// about twice the margin is held against both; slot 0 is filled first). Targets and normals are
+// fixed in the bone's rest frame.
+struct BoneContacts {
+  static constexpr int slots = 2;
+  std::vector<int> bone[slots];  // per particle: the bone, or -1
+  std::vector<Vec3> target_rest[slots], normal_rest[slots];
+  void clear(int n) {
+    for (int s = 0; s < slots; ++s) {
+      bone[s].assign(n, -1);
+      target_rest[s].assign(n, Vec3::Zero());
+      normal_rest[s].assign(n, Vec3::Zero());
+    }
+  }
+  bool has(int p) const { return bone[0][p] >= 0; }
+  // The target a particle is pulled to in the global step: its contact's, or the mean of both.
+  Vec3 calc_target(int p, const std::vector<Transform>& motions) const {
+    Vec3 t = motions[bone[0][p]] * target_rest[0][p];
+    if (bone[1][p] >= 0) t = 0.5 * (t + motions[bone[1][p]] * target_rest[1][p]);
+    return t;
+  }
+};
+
 struct FibresFirstSolver::Workspace {
   std::vector<std::unique_ptr<MuscleSystem>> systems;  // per muscle
-  // bone contacts, per particle (bone -1: none); targets fixed in the bone's rest frame
-  std::vector<int> contact_bone;
-  std::vector<Vec3> contact_target_rest, contact_normal_rest;
+  BoneContacts bone_contacts;
   std::vector<Points3> checked_at;  // per bone: last exactly tested position (bone rest frame)
   std::vector<VecX> clearance;      // per bone: its distance to the bone then (inside: -depth)
   std::vector<MusclePair> pairs;
   std::unordered_set<long long> pair_keys;
   PairCandidates candidates;
+  SurfaceSeparation surfaces;
   Points3 pair_target;           // per particle: mean pair target this iteration
   std::vector<int> pair_count;   // per particle
   Points3 previous, velocity;
@@ -286,6 +346,12 @@ struct FibresFirstSolver::Workspace {
   bool has_previous = false;
   int frames = 0;
 };
+
+namespace {
+void init_surface_separation(const FibresFirstModel& model,
+                             const std::vector<std::unique_ptr<MuscleSystem>>& systems,
+                             SurfaceSeparation& ss);
+}  // namespace
 
 FibresFirstSolver::FibresFirstSolver(const FibresFirstModel& model)
     : model_(model), ws_(std::make_unique<Workspace>()) {
@@ -325,9 +391,8 @@ FibresFirstSolver::FibresFirstSolver(const FibresFirstModel& model)
   }
   ws.checked_at.assign(model_.num_bones(), model_.rest);
   ws.clearance = model_.rest_bone_clearance;
-  ws.contact_bone.assign(N, -1);
-  ws.contact_target_rest.assign(N, Vec3::Zero());
-  ws.contact_normal_rest.assign(N, Vec3::Zero());
+  ws.bone_contacts.clear(N);
+  init_surface_separation(model_, ws.systems, ws.surfaces);
   ws.pair_target = Points3::Zero(N, 3);
   ws.pair_count.assign(N, 0);
   x_ = model_.rest;
@@ -339,10 +404,13 @@ FibresFirstSolver::FibresFirstSolver(FibresFirstSolver&&) noexcept = default;
 
 void FibresFirstSolver::reset() {
   Workspace& ws = *ws_;
-  std::fill(ws.contact_bone.begin(), ws.contact_bone.end(), -1);
+  ws.bone_contacts.clear(model_.num_particles());
   ws.pairs.clear();
   ws.pair_keys.clear();
   ws.candidates.valid = false;
+  ws.surfaces.valid = false;
+  ws.surfaces.contacts.clear();
+  ws.surfaces.keys.clear();
   ws.has_previous = false;
   ws.correction.resize(0, 3);
   ws.checked_at.assign(model_.num_bones(), model_.rest);
@@ -376,8 +444,7 @@ struct FrameContext {
 // `checked_at` / `clearance` (per bone, per particle) cache the last exact test (clearance: the
 // distance then, minus the depth when inside): a particle that
 // was outside at distance c (bone frame) and has moved less than c since cannot be inside.
-int detect_bone_contacts(const FrameContext& c, const Points3& x, std::vector<int>& contact_bone,
-                         std::vector<Vec3>& target_rest, std::vector<Vec3>& normal_rest,
+int detect_bone_contacts(const FrameContext& c, const Points3& x, BoneContacts& contacts,
                          std::vector<Points3>& checked_at, std::vector<VecX>& clearance,
                          bool add, std::vector<double>* max_depth_per_muscle) {
   const FibresFirstModel& model = c.model;
@@ -409,12 +476,30 @@ int detect_bone_contacts(const FrameContext& c, const Points3& x, std::vector<in
         double& d = (*max_depth_per_muscle)[model.muscle_of[p]];
         d = std::max(d, cp.distance);
       }
-      if (!add || contact_bone[p] >= 0) continue;
+      if (!add) continue;
+      // a free slot, and not a second contact with the same bone
+      int slot = -1;
+      bool held_by_b = false;
+      for (int s = 0; s < BoneContacts::slots; ++s) {
+        held_by_b = held_by_b || contacts.bone[s][p] == b;
+        if (slot < 0 && contacts.bone[s][p] < 0) slot = s;
+      }
       const Vec3 n = face_normal.norm() > 0.0 ? Vec3(face_normal.normalized())
                                               : Vec3((cp.point - local).normalized());
-      contact_bone[p] = b;
-      target_rest[p] = cp.point + margin * n;
-      normal_rest[p] = n;
+      if (held_by_b) {
+        // inside a bone it is already held against: the contact's plane (set where the particle
+        // entered) no longer fits where it is now; move the plane to the current closest point
+        for (int s = 0; s < BoneContacts::slots; ++s)
+          if (contacts.bone[s][p] == b) {
+            contacts.target_rest[s][p] = cp.point + margin * n;
+            contacts.normal_rest[s][p] = n;
+          }
+        continue;
+      }
+      if (slot < 0) continue;
+      contacts.bone[slot][p] = b;
+      contacts.target_rest[slot][p] = cp.point + margin * n;
+      contacts.normal_rest[slot][p] = n;
       ++added;
     }
   }
@@ -490,6 +575,277 @@ int detect_muscle_pairs(const FibresFirstModel& model, const Points3& x, PairCan
   return added;
 }
 
+// ---- Display-surface separation (docs/representations.md, "Display-surface separation") ----
+
+// Display vertex v of muscle m at positions x (all particles): sum_k w_k x_k.
+Vec3 calc_surface_vertex(const FibreBundle& m, int v, const Points3& x) {
+  Vec3 s = Vec3::Zero();
+  for (int k = m.surface_weight_start[v]; k < m.surface_weight_start[v + 1]; ++k)
+    s += m.surface_weight[k] * x.row(m.surface_weight_particle[k]).transpose();
+  return s;
+}
+
+// Signed gap of p from a closed, outward surface (positive outside): the closest point, and the
+// side of its face (MeshQuery's ray vote on an edge or a vertex), the bones' rule.
+double calc_signed_gap(const MeshQuery& surface, const Vec3& p, ClosestPoint& cp) {
+  cp = surface.calc_closest_point(p);
+  if (cp.triangle < 0) return std::numeric_limits<double>::infinity();
+  return detail::calc_is_behind_bone(surface, p, cp) ? -cp.distance : cp.distance;
+}
+
+Eigen::AlignedBox3d calc_box(const Points3& V, double pad) {
+  Eigen::AlignedBox3d box(V.colwise().minCoeff().transpose(), V.colwise().maxCoeff().transpose());
+  box.min().array() -= pad;
+  box.max().array() += pad;
+  return box;
+}
+
+// The smallest gap vertex v of muscle a may have to muscle b's surface: the margin, or for a pair
+// that keeps its rest depths, min(margin, rest gap).
+double get_min_gap(const SurfaceSeparation& ss, const FibresFirstOptions& o, int nm, int a, int v,
+                   int b) {
+  const VecX& rest = ss.rest_gap[a * nm + b];
+  if (ss.resolved[a * nm + b] || rest.size() == 0) return o.surface_margin_m;
+  return std::min(o.surface_margin_m, rest[v]);
+}
+
+// One query per display surface (rest pose), the rest gaps of every vertex near another muscle's
+// surface, and which pairs are separated fully (rest overlap <= surface_rest_overlap_resolved_m
+// both ways) or keep their rest depths.
+void init_surface_separation(const FibresFirstModel& model,
+                             const std::vector<std::unique_ptr<MuscleSystem>>& systems,
+                             SurfaceSeparation& ss) {
+  const FibresFirstOptions& o = model.options;
+  const int nm = static_cast<int>(model.muscles.size());
+  ss = SurfaceSeparation{};
+  ss.enabled = o.separate_surfaces && nm >= 2;
+  if (!ss.enabled) return;
+  ss.query.resize(nm);
+  ss.surface.resize(nm);
+  ss.kernels.resize(nm);
+  for (int mi = 0; mi < nm; ++mi)
+    ss.kernels[mi].resize(std::max(0, model.muscles[mi].num_surface_vertices()));
+  for (int mi = 0; mi < nm; ++mi) {
+    const FibreBundle& m = model.muscles[mi];
+    if (m.surface_triangles.rows() < 4) continue;
+    ss.surface[mi] = systems[mi]->surface_map * model.rest.middleRows(m.first_particle, m.num_particles);
+    ss.query[mi] = std::make_unique<MeshQuery>(TriMesh{ss.surface[mi], m.surface_triangles});
+  }
+  ss.rest_gap.assign(static_cast<std::size_t>(nm) * nm, VecX());
+  ss.resolved.assign(static_cast<std::size_t>(nm) * nm, 1);
+  std::vector<Eigen::AlignedBox3d> box(nm);
+  for (int mi = 0; mi < nm; ++mi)
+    if (ss.query[mi]) box[mi] = calc_box(ss.surface[mi], o.surface_margin_m);
+  std::vector<double> rest_depth(static_cast<std::size_t>(nm) * nm, 0.0);
+  parallel_for(static_cast<std::size_t>(nm), [&](std::size_t a) {
+    if (!ss.query[a]) return;
+    for (int b = 0; b < nm; ++b) {
+      if (b == static_cast<int>(a) || !ss.query[b] || !box[a].intersects(box[b])) continue;
+      const Points3& S = ss.surface[a];
+      VecX gap = VecX::Constant(S.rows(), std::numeric_limits<double>::infinity());
+      bool near = false;
+      for (Eigen::Index v = 0; v < S.rows(); ++v) {
+        const Vec3 p = S.row(v).transpose();
+        if (!box[b].contains(p)) continue;
+        ClosestPoint cp;
+        gap[v] = calc_signed_gap(*ss.query[b], p, cp);
+        near = near || gap[v] < o.surface_margin_m;
+        rest_depth[a * nm + b] = std::max(rest_depth[a * nm + b], -gap[v]);
+      }
+      if (near) ss.rest_gap[a * nm + b] = std::move(gap);
+    }
+  });
+  for (int a = 0; a < nm; ++a)
+    for (int b = 0; b < nm; ++b)
+      ss.resolved[a * nm + b] = std::max(rest_depth[a * nm + b], rest_depth[b * nm + a]) <=
+                                o.surface_rest_overlap_resolved_m;
+}
+
+// Brings every display surface (and its query) to positions x.
+void update_surfaces(const FibresFirstModel& model,
+                     const std::vector<std::unique_ptr<MuscleSystem>>& systems, const Points3& x,
+                     SurfaceSeparation& ss) {
+  parallel_for(model.muscles.size(), [&](std::size_t mi) {
+    if (!ss.query[mi]) return;
+    const FibreBundle& m = model.muscles[mi];
+    ss.surface[mi] = systems[mi]->surface_map * x.middleRows(m.first_particle, m.num_particles);
+    ss.query[mi]->update_vertices(ss.surface[mi]);
+  });
+}
+
+// Brings the candidate list up to date (see SurfaceSeparation): a vertex farther than
+// margin + skin from a surface at the build cannot come within the margin before some vertex has
+// moved skin/2 (the signed distance to a surface changes by at most the surface's and the
+// point's displacements).
+void refresh_surface_candidates(const FibresFirstModel& model, SurfaceSeparation& ss) {
+  const FibresFirstOptions& o = model.options;
+  const int nm = static_cast<int>(model.muscles.size());
+  const double reach = o.surface_margin_m + o.surface_list_skin_m;
+  if (ss.valid) {
+    const double limit2 = 0.25 * o.surface_list_skin_m * o.surface_list_skin_m;
+    bool moved = false;
+    for (int mi = 0; mi < nm && !moved; ++mi)
+      if (ss.query[mi]) moved = (ss.surface[mi] - ss.built_at[mi]).rowwise().squaredNorm().maxCoeff() > limit2;
+    if (!moved) return;
+  }
+  ss.built_at = ss.surface;
+  std::vector<Eigen::AlignedBox3d> box(nm);
+  for (int mi = 0; mi < nm; ++mi)
+    if (ss.query[mi]) box[mi] = calc_box(ss.surface[mi], reach);
+  std::vector<std::vector<std::array<int, 3>>> found(nm);
+  parallel_for(static_cast<std::size_t>(nm), [&](std::size_t ai) {
+    const int a = static_cast<int>(ai);
+    if (!ss.query[a]) return;
+    std::vector<int> near;
+    for (int b = 0; b < nm; ++b)
+      if (b != a && ss.query[b] && box[a].intersects(box[b])) near.push_back(b);
+    if (near.empty()) return;
+    const Points3& S = ss.surface[a];
+    for (int v = 0; v < static_cast<int>(S.rows()); ++v) {
+      const Vec3 p = S.row(v).transpose();
+      for (int b : near) {
+        if (!box[b].contains(p)) continue;
+        ClosestPoint cp;
+        if (calc_signed_gap(*ss.query[b], p, cp) < reach) found[a].push_back({a, v, b});
+      }
+    }
+  });
+  ss.candidates.clear();
+  for (const auto& f : found) ss.candidates.insert(ss.candidates.end(), f.begin(), f.end());
+  ss.valid = true;
+  ++ss.builds;
+}
+
+// Finds the display vertices closer to another muscle's surface than their minimum gap (the
+// surfaces brought to x first); adds new contacts when `add`; returns the number added. Metrics
+// per muscle of the vertex: the deepest vertex inside another surface (absolute, and beyond its
+// rest depth).
+int detect_surface_contacts(const FibresFirstModel& model,
+                            const std::vector<std::unique_ptr<MuscleSystem>>& systems,
+                            const Points3& x, SurfaceSeparation& ss, bool add,
+                            std::vector<double>* depth, std::vector<double>* beyond_rest) {
+  if (!ss.enabled) return 0;
+  const int nm = static_cast<int>(model.muscles.size());
+  update_surfaces(model, systems, x, ss);
+  refresh_surface_candidates(model, ss);
+  const std::size_t n = ss.candidates.size();
+  std::vector<double> gap(n);
+  std::vector<ClosestPoint> cps(n);
+  parallel_for(n, [&](std::size_t i) {
+    const auto [a, v, b] = ss.candidates[i];
+    gap[i] = calc_signed_gap(*ss.query[b], ss.surface[a].row(v).transpose(), cps[i]);
+  });
+  int added = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto [a, v, b] = ss.candidates[i];
+    if (gap[i] < 0.0) {
+      if (depth) (*depth)[a] = std::max((*depth)[a], -gap[i]);
+      if (beyond_rest) {
+        const VecX& rest = ss.rest_gap[a * nm + b];
+        const double rest_depth = rest.size() > 0 ? std::max(0.0, -rest[v]) : 0.0;
+        (*beyond_rest)[a] = std::max((*beyond_rest)[a], -gap[i] - rest_depth);
+      }
+    }
+    if (!add || !(gap[i] < get_min_gap(ss, model.options, nm, a, v, b))) continue;
+    const long long key = (static_cast<long long>(a) * nm + b) * (1LL << 31) + v;
+    if (!ss.keys.insert(key).second) continue;
+    ss.contacts.push_back({a, v, b, cps[i].triangle, cps[i].barycentric,
+                           get_min_gap(ss, model.options, nm, a, v, b)});
+    ++added;
+  }
+  return added;
+}
+
+// The smooth displacement field a push applies around display vertex v of muscle m: per particle
+// of m (ascending), phi = exp(-|r|^2 / R^2), r its rest distance to the vertex's rest position,
+// R = 2 x the muscle's mean spring length, kept where phi >= 1e-3. Built on first use.
+const PushKernel& get_push_kernel(const FibresFirstModel& model, SurfaceSeparation& ss, int mi, int v) {
+  PushKernel& k = ss.kernels[mi][v];
+  if (k.built) return k;
+  const FibreBundle& m = model.muscles[mi];
+  const Vec3 centre = calc_surface_vertex(m, v, model.rest);
+  const double R = 2.0 * m.mean_spring_length_m, cut2 = R * R * std::log(1e3);
+  for (int p = m.first_particle; p < m.first_particle + m.num_particles; ++p) {
+    const double r2 = (model.rest.row(p).transpose() - centre).squaredNorm();
+    if (r2 <= cut2) k.entries.emplace_back(p, std::exp(-r2 / (R * R)));
+  }
+  k.built = true;
+  return k;
+}
+
+// Pushes contact c to its minimum gap at positions x: the vertex along n by its muscle's
+// particles, the face point against n by the other muscle's, half each (all of it by one side
+// when the other cannot move). A side moves its movable particles by a smooth bump, phi_k d / c,
+// with phi the push kernel around the point (get_push_kernel; for the face point the barycentric
+// blend of its corners' kernels) and c = sum_k w_k phi_k over the point's weights w, so the point
+// moves by exactly d and the surface around it follows smoothly; a side with c < 1/2 (mostly
+// carried by particles that cannot move) counts as immovable. (Moving only the point's own
+// particles, by the minimum-norm w_k d / sum w^2 or by a common translation, was tried first: the
+// loft's weights extrapolate, reaching |w| = 6, so a partial move of a vertex's particles moved
+// its neighbours by several times d, and the Gauss-Seidel passes diverged on the VH shank.)
+// Returns the deficit found (<= 0: the gap was met). `bump`: scratch.
+template <class Movable>
+double push_surface_contact(const FibresFirstModel& model, SurfaceSeparation& ss,
+                            const SurfaceContact& c, Points3& x, const Movable& movable,
+                            std::vector<std::pair<int, double>>& bump) {
+  const FibreBundle& ma = model.muscles[c.a];
+  const FibreBundle& mb = model.muscles[c.b];
+  const Vec3 s = calc_surface_vertex(ma, c.v, x);
+  Vec3 corner[3];
+  for (int i = 0; i < 3; ++i) corner[i] = calc_surface_vertex(mb, mb.surface_triangles(c.triangle, i), x);
+  Vec3 n = (corner[1] - corner[0]).cross(corner[2] - corner[0]);
+  if (!(n.norm() > 0.0)) return 0.0;
+  n.normalize();
+  const Vec3 point = c.barycentric[0] * corner[0] + c.barycentric[1] * corner[1] + c.barycentric[2] * corner[2];
+  const double deficit = c.min_gap - (s - point).dot(n);
+  if (!(deficit > 0.0)) return deficit;
+  // a side: its bump (movable particles only, ascending) and c = sum_k w_k phi_k
+  auto phi_of = [&](int p) {
+    const auto it = std::lower_bound(bump.begin(), bump.end(), std::make_pair(p, -1.0));
+    return it != bump.end() && it->first == p ? it->second : 0.0;
+  };
+  auto make_side = [&](const FibreBundle& m, int mi, const int* vertices, const double* blend, int count) {
+    bump.clear();
+    for (int i = 0; i < count; ++i)
+      for (const auto& [p, phi] : get_push_kernel(model, ss, mi, vertices[i]).entries)
+        if (movable(p)) bump.emplace_back(p, blend[i] * phi);
+    std::sort(bump.begin(), bump.end());
+    std::size_t kept = 0;
+    for (std::size_t j = 0; j < bump.size(); ++j) {
+      if (kept > 0 && bump[kept - 1].first == bump[j].first) bump[kept - 1].second += bump[j].second;
+      else bump[kept++] = bump[j];
+    }
+    bump.resize(kept);
+    double weight = 0.0;
+    for (int i = 0; i < count; ++i)
+      for (int k = m.surface_weight_start[vertices[i]]; k < m.surface_weight_start[vertices[i] + 1]; ++k)
+        weight += blend[i] * m.surface_weight[k] * phi_of(m.surface_weight_particle[k]);
+    return weight;
+  };
+  const int va[1] = {c.v};
+  const double one[1] = {1.0};
+  const int vb[3] = {mb.surface_triangles(c.triangle, 0), mb.surface_triangles(c.triangle, 1),
+                     mb.surface_triangles(c.triangle, 2)};
+  const double beta[3] = {c.barycentric[0], c.barycentric[1], c.barycentric[2]};
+  const double wa = make_side(ma, c.a, va, one, 1);
+  const bool a_moves = wa >= 0.5;
+  std::vector<std::pair<int, double>> bump_a;
+  if (a_moves) bump_a = bump;
+  const double wb = make_side(mb, c.b, vb, beta, 3);
+  const bool b_moves = wb >= 0.5;
+  if (!a_moves && !b_moves) return deficit;
+  const double share_a = a_moves ? (b_moves ? 0.5 : 1.0) : 0.0;
+  if (share_a > 0.0) {
+    const Vec3 d = (share_a * deficit / wa) * n;
+    for (const auto& [p, phi] : bump_a) x.row(p) += phi * d.transpose();
+  }
+  if (share_a < 1.0) {
+    const Vec3 d = ((1.0 - share_a) * deficit / wb) * n;
+    for (const auto& [p, phi] : bump) x.row(p) -= phi * d.transpose();
+  }
+  return deficit;
+}
+
 }  // namespace
 
 namespace {
@@ -507,7 +863,7 @@ void update_factors(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
     MuscleSystem& sys = *ws.systems[mi];
     std::fill(sys.weight.begin(), sys.weight.end(), 0.0);
     for (std::size_t j = 0; j < m.free.size(); ++j)
-      if (ws.contact_bone[m.free[j]] >= 0) sys.weight[j] = ctx.contact_weight;
+      if (ws.bone_contacts.has(m.free[j])) sys.weight[j] = ctx.contact_weight;
   }
   for (const MusclePair& pr : ws.pairs)
     for (int p : {pr.p, pr.q}) {
@@ -655,9 +1011,8 @@ double relax_muscle(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
     const int p = m.free[j];
     if (ctx.inertial) B.row(j).head<3>() += mass_term * ctx.inertial->row(p);
     if (sys.factored_weight[j] == 0.0) continue;
-    const int bone = ws.contact_bone[p];
-    const Vec3 target = bone >= 0 ? Vec3(motions[bone] * ws.contact_target_rest[p])
-                                  : Vec3(ws.pair_target.row(p).transpose() / ws.pair_count[p]);
+    const Vec3 target = ws.bone_contacts.has(p) ? ws.bone_contacts.calc_target(p, motions)
+                                                : Vec3(ws.pair_target.row(p).transpose() / ws.pair_count[p]);
     B.row(j).head<3>() += sys.factored_weight[j] * target.transpose();
   }
   // volume gradient at the current iterate (first iteration of a round only)
@@ -711,17 +1066,25 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
   // pushed apart, each muscle's volume restored along its correction direction with those
   // particles held; then once more the pairs and bones (the volume step moves the other particles)
   std::vector<char> held(N, 0);
+  // onto each contact's target plane; a particle with two contacts alternates between the planes
+  // (a few passes: the projections converge to the intersection of the half-spaces)
+  const BoneContacts& bc = ws.bone_contacts;
   auto project_onto_bones = [&] {
     for (int p = 0; p < N; ++p) {
-      const int b = ws.contact_bone[p];
-      if (b < 0) continue;
-      const Vec3 target = motions[b] * ws.contact_target_rest[p];
-      const Vec3 n = motions[b].linear() * ws.contact_normal_rest[p];
-      const double below = (target - Vec3(x.row(p).transpose())).dot(n);
-      if (below > 0.0) {
-        x.row(p) += below * n.transpose();
-        held[p] = 1;
-      }
+      if (!bc.has(p)) continue;
+      const int passes = bc.bone[1][p] >= 0 ? 4 : 1;
+      for (int pass = 0; pass < passes; ++pass)
+        for (int s = 0; s < BoneContacts::slots; ++s) {
+          const int b = bc.bone[s][p];
+          if (b < 0) continue;
+          const Vec3 target = motions[b] * bc.target_rest[s][p];
+          const Vec3 n = motions[b].linear() * bc.normal_rest[s][p];
+          const double below = (target - Vec3(x.row(p).transpose())).dot(n);
+          if (below > 0.0) {
+            x.row(p) += below * n.transpose();
+            held[p] = 1;
+          }
+        }
     }
   };
   auto push_pairs_apart = [&] {
@@ -749,11 +1112,27 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
       held[pr.q] = std::max<char>(held[pr.q], 2);
     }
   };
-  detect_bone_contacts(ctx, x, ws.contact_bone, ws.contact_target_rest, ws.contact_normal_rest,
-                       ws.checked_at, ws.clearance, true, nullptr);
+  // display surfaces: new contacts at x, then Gauss-Seidel passes over all of them; their
+  // particles are held by the volume step (2: movable by pairs and surfaces)
+  std::vector<std::pair<int, double>> face;
+  SurfaceSeparation& ss = ws.surfaces;
+  auto push_surfaces_apart = [&] {
+    if (!ss.enabled) return;
+    detect_surface_contacts(model, ws.systems, x, ss, true, nullptr, nullptr);
+    auto movable = [&](int p) { return model.role[p] != ParticleRole::fixed && held[p] != 1; };
+    for (int pass = 0; pass < 3; ++pass) {
+      bool moved = false;
+      for (const SurfaceContact& c : ss.contacts)
+        moved = push_surface_contact(model, ss, c, x, movable, face) > 0.0 || moved;
+      if (!moved) break;
+    }
+  };
+  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr);
   project_onto_bones();
   push_pairs_apart();
-  if (o.hold_volume)
+  push_surfaces_apart();
+  auto restore_volumes = [&] {
+    if (!o.hold_volume) return;
     for (int mi = 0; mi < nm; ++mi) {
       const FibreBundle& m = model.muscles[mi];
       const MuscleSystem& sys = *ws.systems[mi];
@@ -771,7 +1150,19 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
         x.middleRows(m.first_particle, m.num_particles) = xm;
       }
     }
+  };
+  restore_volumes();
   push_pairs_apart();
+  if (ss.enabled) {
+    // the volume step moves the surfaces: separate them again and restore the volumes once more
+    // (the surface pushes' particles are not held, so this last volume step can bring back a
+    // small overlap; docs/representations.md)
+    push_surfaces_apart();
+    restore_volumes();
+    // the pushes may have moved particles into bones: detect those too (a second contact slot
+    // when the particle already holds one)
+    detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr);
+  }
   project_onto_bones();
 }
 
@@ -890,10 +1281,11 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
   // contacts at the start: previous bone contacts (kept unless released last frame), new ones
   ws.pairs.clear();
   ws.pair_keys.clear();
-  detect_bone_contacts(ctx, x, ws.contact_bone, ws.contact_target_rest, ws.contact_normal_rest,
-                       ws.checked_at, ws.clearance, true, nullptr);
+  ws.surfaces.contacts.clear();
+  ws.surfaces.keys.clear();
+  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr);
   detect_muscle_pairs(model, x, ws.candidates, ws.pairs, ws.pair_keys, true, nullptr);
-
+  detect_surface_contacts(model, ws.systems, x, ws.surfaces, true, nullptr, nullptr);
   const int nm = static_cast<int>(model.muscles.size());
   std::vector<double> steps(nm, 0.0);
   std::vector<char> volume_failed(nm, 0);
@@ -909,6 +1301,10 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
       const int a = model.muscle_of[pr.p], b = model.muscle_of[pr.q];
       partners[a].push_back(b);
       partners[b].push_back(a);
+    }
+    for (const SurfaceContact& c : ws.surfaces.contacts) {
+      partners[c.a].push_back(c.b);
+      partners[c.b].push_back(c.a);
     }
     for (auto& list : partners) {
       std::sort(list.begin(), list.end());
@@ -958,10 +1354,10 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
     }
     // new contacts? (after the last round, the final projection below detects them)
     if (round + 1 == o.max_contact_rounds) break;
-    const int added = detect_bone_contacts(ctx, x, ws.contact_bone, ws.contact_target_rest,
-                                           ws.contact_normal_rest, ws.checked_at, ws.clearance,
+    const int added = detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance,
                                            true, nullptr) +
-                      detect_muscle_pairs(model, x, ws.candidates, ws.pairs, ws.pair_keys, true, nullptr);
+                      detect_muscle_pairs(model, x, ws.candidates, ws.pairs, ws.pair_keys, true, nullptr) +
+                      detect_surface_contacts(model, ws.systems, x, ws.surfaces, true, nullptr, nullptr);
     if (added == 0) break;
   }
 
@@ -970,13 +1366,12 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
   // results and checks
   std::vector<FibreBundleFrame> frames(nm);
   std::vector<double> depth(nm, 0.0), overlap(nm, 0.0);
-  std::vector<int> no_bone_contact = ws.contact_bone;  // metrics only
-  std::vector<Vec3> unused_t(N), unused_n(N);
-  detect_bone_contacts(ctx, x, no_bone_contact, unused_t, unused_n, ws.checked_at, ws.clearance,
-                       false, &depth);
+  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, false, &depth);
   std::vector<MusclePair> no_pairs;
   std::unordered_set<long long> no_keys;
   detect_muscle_pairs(model, x, ws.candidates, no_pairs, no_keys, false, &overlap);
+  std::vector<double> surface_depth(nm, 0.0), surface_beyond(nm, 0.0);
+  detect_surface_contacts(model, ws.systems, x, ws.surfaces, false, &surface_depth, &surface_beyond);
   for (int mi = 0; mi < nm; ++mi) {
     const FibreBundle& m = model.muscles[mi];
     FibreBundleFrame& fr = frames[mi];
@@ -988,6 +1383,8 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
     }
     fr.max_bone_penetration_m = depth[mi];
     fr.max_muscle_overlap_m = overlap[mi];
+    fr.max_surface_overlap_m = surface_depth[mi];
+    fr.max_surface_overlap_beyond_rest_m = surface_beyond[mi];
     if (o.hold_volume && !(fr.relative_volume_error <= o.max_volume_error))
       throw_numerical(fmt::format("frame {}: the volume of muscle '{}' could not be held (relative "
                                   "error {:.3g} > {:.3g}{})", frame, m.name, fr.relative_volume_error,
@@ -996,19 +1393,35 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
                                             "smaller steps between frames or more iterations"));
   }
   for (int p = 0; p < N; ++p)
-    if (ws.contact_bone[p] >= 0) ++frames[model.muscle_of[p]].bone_contacts;
+    for (int s = 0; s < BoneContacts::slots; ++s)
+      if (ws.bone_contacts.bone[s][p] >= 0) ++frames[model.muscle_of[p]].bone_contacts;
   for (const MusclePair& pr : ws.pairs) {
     ++frames[model.muscle_of[pr.p]].muscle_contacts;
     ++frames[model.muscle_of[pr.q]].muscle_contacts;
   }
+  for (const SurfaceContact& c : ws.surfaces.contacts) {
+    ++frames[c.a].surface_contacts;
+    ++frames[c.b].surface_contacts;
+  }
 
   // release bone contacts whose particle the springs pull away from the bone
+  // (each contact on its own; a remaining second contact moves to the first slot)
+  BoneContacts& bc = ws.bone_contacts;
   for (int p = 0; p < N; ++p) {
-    const int b = ws.contact_bone[p];
-    if (b < 0) continue;
-    const Vec3 target = motions[b] * ws.contact_target_rest[p];
-    const Vec3 n = motions[b].linear() * ws.contact_normal_rest[p];
-    if ((target - Vec3(x.row(p).transpose())).dot(n) < 0.0) ws.contact_bone[p] = -1;
+    if (!bc.has(p)) continue;
+    for (int s = 0; s < BoneContacts::slots; ++s) {
+      const int b = bc.bone[s][p];
+      if (b < 0) continue;
+      const Vec3 target = motions[b] * bc.target_rest[s][p];
+      const Vec3 n = motions[b].linear() * bc.normal_rest[s][p];
+      if ((target - Vec3(x.row(p).transpose())).dot(n) < 0.0) bc.bone[s][p] = -1;
+    }
+    if (bc.bone[0][p] < 0 && bc.bone[1][p] >= 0) {
+      bc.bone[0][p] = bc.bone[1][p];
+      bc.target_rest[0][p] = bc.target_rest[1][p];
+      bc.normal_rest[0][p] = bc.normal_rest[1][p];
+      bc.bone[1][p] = -1;
+    }
   }
 
   // commit

@@ -51,6 +51,12 @@ class FibresFirst final : public MuscleGroupRepresentation {
     o.bending_stiffness = get_option(first, "bending_stiffness", o.bending_stiffness);
     o.muscle_margin_m = get_option(first, "muscle_margin", o.muscle_margin_m);
     o.bone_margin_m = get_option(first, "bone_margin", o.bone_margin_m);
+    // display-surface separation (experimental, off by default: see fibres_first.hpp; pairs
+    // overlapping at rest by more than surface_rest_overlap_resolved metres keep their rest depths)
+    o.separate_surfaces = get_option(first, "separate_surfaces", 0.0) != 0.0;
+    o.surface_margin_m = get_option(first, "surface_margin", o.surface_margin_m);
+    o.surface_rest_overlap_resolved_m =
+        get_option(first, "surface_rest_overlap_resolved", o.surface_rest_overlap_resolved_m);
     o.dynamic = get_option(first, "dynamic", 0.0) != 0.0;
     o.damping_per_s = get_option(first, "damping", o.damping_per_s);
     o.max_iterations = static_cast<int>(get_option(first, "iterations", o.max_iterations));

@@ -347,6 +347,95 @@ TEST(FibresFirst, BundlesPressedTogetherDoNotInterpenetrate) {
   EXPECT_GT(inside, 0);
 }
 
+// Deepest vertex of `mesh` inside the closed surface `other` (0: none inside), measured
+// independently of the solver (ray-vote inside test, exact closest point).
+double calc_deepest_vertex_inside(const Points3& vertices, const MeshQuery& other) {
+  double deepest = 0.0;
+  for (Eigen::Index v = 0; v < vertices.rows(); ++v) {
+    const Vec3 p = vertices.row(v).transpose();
+    if (other.calc_is_inside(p)) deepest = std::max(deepest, other.calc_closest_point(p).distance);
+  }
+  return deepest;
+}
+
+// Two crossing bundles whose display surfaces (boxes 1.5 mm outside their outer particles) are
+// pressed 5 mm into each other: particle separation alone leaves the surfaces overlapping; with
+// display-surface separation no vertex of one ends more than 0.5 mm inside the other.
+TEST(FibresFirst, DisplaySurfacesPressedTogetherDoNotOverlap) {
+  const double L = 0.06, gap = 0.003, half = 0.0045;
+  const MeshQuery a0(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, -0.005)));
+  const MeshQuery a1(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, L + 0.005)));
+  const double x0 = 0.010;  // surfaces 1 mm apart at rest
+  const MeshQuery b0(moved(make_box(Vec3(0.01, 0.005, 0.01)), Vec3(x0, -L / 2 - 0.005, L / 2)));
+  const MeshQuery b1(moved(make_box(Vec3(0.01, 0.005, 0.01)), Vec3(x0, L / 2 + 0.005, L / 2)));
+  FibreBundleSpec A{"A", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 3, 3, gap), 0, 1};
+  A.rest_surface = moved(make_box(Vec3(half, half, L / 2)), Vec3(0, 0, L / 2));
+  FibreBundleSpec B{"B", make_bundle(Vec3(x0, -L / 2, L / 2), Vec3::UnitY(), Vec3::UnitX(), L, 3, 3, gap), 2, 3};
+  B.rest_surface = moved(make_box(Vec3(half, L / 2, half)), Vec3(x0, 0, L / 2));
+  auto run = [&](const FibresFirstOptions& o, std::vector<double>& deepest) {
+    const FibresFirstModel model = build_fibres_first_model({A, B}, {&a0, &a1, &b0, &b1}, o);
+    EXPECT_TRUE(model.muscles[0].surface_from_rest_mesh && model.muscles[1].surface_from_rest_mesh);
+    FibresFirstSolver solver(model);
+    for (int k = 1; k <= 6; ++k) {
+      const Transform T = translation(Vec3(-0.001 * k, 0, 0));
+      solver.calc_frame({{Transform::Identity(), Transform::Identity(), T, T}});
+      const auto& fr = solver.get_muscles();
+      deepest.assign(2, 0.0);
+      for (int m = 0; m < 2; ++m) {
+        const MeshQuery other(TriMesh{fr[1 - m].surface_vertices, model.muscles[1 - m].surface_triangles});
+        deepest[m] = calc_deepest_vertex_inside(fr[m].surface_vertices, other);
+        EXPECT_LT(fr[m].relative_volume_error, o.volume_tolerance) << "frame " << k;
+        if (o.separate_surfaces) {
+          EXPECT_LE(deepest[m], 5e-4) << model.muscles[m].name << ", frame " << k;
+          EXPECT_LE(fr[m].max_surface_overlap_m, 5e-4) << model.muscles[m].name << ", frame " << k;
+        }
+      }
+    }
+    return solver.get_muscles()[0].surface_contacts;
+  };
+  FibresFirstOptions on;
+  on.particles_per_fibre = 21;
+  on.separate_surfaces = true;
+  std::vector<double> deepest_on, deepest_off;
+  EXPECT_GT(run(on, deepest_on), 0);
+  // the same motion with particle separation only: the surfaces overlap by more than 1 mm
+  FibresFirstOptions off = on;
+  off.separate_surfaces = false;
+  EXPECT_EQ(run(off, deepest_off), 0);
+  EXPECT_GT(std::max(deepest_off[0], deepest_off[1]), 1e-3);
+}
+
+// A corner of a bundle pressed by two blocks at once (one moving in -x, one in -y): the corner
+// particles need two bone contacts; none ends inside either block.
+TEST(FibresFirst, ParticleNearTwoBonesStaysOutOfBoth) {
+  const double L = 0.1;
+  const EndBones ends(L);
+  const MeshQuery bx(moved(make_box(Vec3(0.005, 0.005, 0.01)), Vec3(0.0095, 0.0, L / 2)));
+  const MeshQuery by(moved(make_box(Vec3(0.005, 0.005, 0.01)), Vec3(0.0, 0.0095, L / 2)));
+  const FibreBundleSpec spec{"cornered", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 3, 3, 0.004), 0, 1};
+  FibresFirstOptions o;
+  const FibresFirstModel model = build_fibres_first_model({spec}, {&ends.bottom, &ends.top, &bx, &by}, o);
+  FibresFirstSolver solver(model);
+  for (int k = 1; k <= 4; ++k) {  // faces from 4.5 mm (0.5 mm clear of the corner) to 2.5 mm
+    const Transform Tx = translation(Vec3(-0.0005 * k, 0, 0)), Ty = translation(Vec3(0, -0.0005 * k, 0));
+    solver.calc_frame({{Transform::Identity(), Transform::Identity(), Tx, Ty}});
+    const FibreBundleFrame& fr = solver.get_muscles()[0];
+    EXPECT_LE(fr.max_bone_penetration_m, 1e-9) << "frame " << k;
+    const Points3& x = solver.get_particles();
+    for (int p = 0; p < x.rows(); ++p) {
+      const Vec3 xp = x.row(p).transpose();
+      EXPECT_FALSE(bx.calc_is_inside(Tx.inverse() * xp)) << "particle " << p << " frame " << k;
+      EXPECT_FALSE(by.calc_is_inside(Ty.inverse() * xp)) << "particle " << p << " frame " << k;
+    }
+  }
+  // the middle particle of the corner fibre (x = y = +4 mm at rest) was pushed past both faces,
+  // which end at x = 2.5 mm and y = 2.5 mm
+  const int P = o.particles_per_fibre;
+  const Vec3 corner = solver.get_particles().row(8 * P + P / 2).transpose();
+  EXPECT_LT(corner.x(), 0.0025);
+  EXPECT_LT(corner.y(), 0.0025);
+}
+
 // Stretching a bundle by 25 %: the volume stays within the tolerance with the volume term and
 // drops by several per cent without it.
 TEST(FibresFirst, VolumeHoldsUnderStretch) {

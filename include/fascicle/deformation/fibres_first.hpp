@@ -101,6 +101,24 @@ struct FibresFirstOptions {
   // only once a contact particle has moved more than half of it. Larger: fewer rebuilds, more
   // candidates to scan; the pairs found are the same for any value >= 0.
   double pair_list_skin_m = 2e-3;
+  // Display-surface separation (muscles with a display surface, loft or tube), in the final
+  // projection: a surface vertex of one muscle that comes closer than surface_margin_m to another
+  // muscle's display surface, or enters it, is pushed out along that surface's normal, half by
+  // its own muscle's particles and half by the other's, each side by a smooth bump of particle
+  // displacements (the vertex and the opposite face point are fixed linear combinations of
+  // particles; docs/representations.md, "Display-surface separation"). Pairs of muscles whose
+  // surfaces overlap at rest by at most surface_rest_overlap_resolved_m are separated fully from
+  // the first frame; deeper pairs (generated volumes) keep every vertex's rest depth and only
+  // growth beyond it is held. EXPERIMENTAL, off by default: it separates two bundles (test) and
+  // the VH shank's rest pose (3.9 -> 0.4 mm), but on the posed VH frames the projection does not
+  // converge (overlaps of 3-4 mm remain where carried belly ends converge at the ankle) and the
+  // volume hold then fails (> 0.5 %) within a few frames.
+  bool separate_surfaces = false;
+  double surface_margin_m = 2e-4;
+  double surface_rest_overlap_resolved_m = 5e-3;
+  // Skin of the surface-vertex candidate list (a Verlet list like pair_list_skin_m): rebuilt
+  // once some surface vertex has moved more than half of it.
+  double surface_list_skin_m = 2e-3;
   double contact_weight = 100.0;  // contact spring = this x along_stiffness
   int max_contact_rounds = 4;     // solve -> detect new contacts -> solve rounds per frame
   // Local/global iterations (projective dynamics) per contact round; stop when the largest
@@ -221,6 +239,11 @@ struct FibreBundleFrame {
   double relative_volume_error = std::numeric_limits<double>::quiet_NaN();  // |V - V0| / V0
   double max_bone_penetration_m = 0.0;   // deepest particle inside a bone beyond its rest depth
   double max_muscle_overlap_m = 0.0;     // largest shortfall of a pair distance below its minimum
+  // Display surfaces (when separate_surfaces): the deepest vertex of this muscle's surface inside
+  // another muscle's surface (face-side rule), absolute and beyond that vertex's rest depth.
+  double max_surface_overlap_m = 0.0;
+  double max_surface_overlap_beyond_rest_m = 0.0;
+  int surface_contacts = 0;              // vertex contacts of this muscle's surface (both sides)
   int bone_contacts = 0, muscle_contacts = 0;
 };
 
