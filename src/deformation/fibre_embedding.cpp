@@ -5,12 +5,14 @@
 #include "fascicle/core/parallel.hpp"
 
 #include <Eigen/Dense>
+#include <nanoflann.hpp>
 
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <numeric>
 
 namespace fascicle {
@@ -307,24 +309,83 @@ std::vector<std::pair<int, double>> truncate_affine(const TriMesh& mesh, const V
 // dA, J and H the first and second derivatives of g. The moments N = sum a_T, M = sum a_T dc_T^T and
 // Q_ikl = sum_T a_T,i S_T,kl are exact sums per cluster (computed once), so the remainder is the
 // third-order term of the expansion, O((radius / |y0|)^3) relative to the cluster's contribution.
+struct FarField {
+  Vec3 centre = Vec3::Zero();
+  double radius = 0.0;        // largest distance from the centre to a corner
+  Vec3 N = Vec3::Zero();
+  Mat3 M = Mat3::Zero();
+  std::array<Mat3, 3> Q{Mat3::Zero(), Mat3::Zero(), Mat3::Zero()};  // Q[i](k, l)
+  Vec3 P = Vec3::Zero();      // P_l = sum_i Q_iil
+  Vec3 T = Vec3::Zero();      // T_i = sum_k Q_ikk
+};
+
 struct FaceCluster {
   TriMesh local;              // the cluster's triangles over its own vertices
   EdgeTable table;            // of `local`
   std::vector<int> vertex;    // local vertex -> surface vertex
   std::vector<int> faces_at;  // per local vertex: the cluster's triangles that use it
-  Vec3 centre = Vec3::Zero();
-  double radius = 0.0;        // largest distance from the centre to a corner
-  Vec3 N = Vec3::Zero();
-  Mat3 M = Mat3::Zero();
-  std::array<Mat3, 3> Q;      // Q[i](k, l) (zeroed by make_clustered_surface)
-  Vec3 P = Vec3::Zero();      // P_l = sum_i Q_iil
-  Vec3 T = Vec3::Zero();      // T_i = sum_k Q_ikk
+  FarField far;
 };
+
+// Consecutive clusters [first, last) with the far field of all their triangles: a group far from
+// the point is expanded once instead of cluster by cluster.
+struct ClusterGroup {
+  int first = 0, last = 0;
+  FarField far;
+};
+
+// nanoflann's view of a surface's vertices (not copied).
+struct VertexCloud {
+  const Points3* V = nullptr;
+  std::size_t kdtree_get_point_count() const { return static_cast<std::size_t>(V->rows()); }
+  double kdtree_get_pt(std::size_t i, std::size_t d) const { return (*V)(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(d)); }
+  template <class Box>
+  bool kdtree_get_bbox(Box&) const { return false; }
+};
+using VertexTree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, VertexCloud>,
+                                                       VertexCloud, 3, std::size_t>;
 
 struct ClusteredSurface {
   std::vector<FaceCluster> clusters;
+  std::vector<ClusterGroup> groups;
   std::vector<int> valence;  // per surface vertex: triangles that use it
+  std::unique_ptr<VertexCloud> cloud;  // (on the heap: the tree refers to it)
+  std::unique_ptr<VertexTree> tree;    // k nearest vertices of a point
 };
+
+// The moments of the far-field expansion of the triangles `faces` of mesh (about their
+// area-weighted centroid).
+FarField make_far_field(const TriMesh& mesh, const std::vector<int>& faces) {
+  FarField c;
+  double area = 0.0;
+  Vec3 weighted = Vec3::Zero();
+  const auto corner = [&](int f, int i) -> Vec3 { return mesh.V.row(mesh.F(f, i)).transpose(); };
+  for (int f : faces) {
+    const Vec3 a = corner(f, 0), b = corner(f, 1), d = corner(f, 2);
+    const double A = 0.5 * (b - a).cross(d - a).norm();
+    area += A;
+    weighted += A * (a + b + d) / 3.0;
+  }
+  Vec3 mean = Vec3::Zero();
+  for (int f : faces) mean += (corner(f, 0) + corner(f, 1) + corner(f, 2)) / (3.0 * static_cast<double>(faces.size()));
+  c.centre = area > 0.0 ? Vec3(weighted / area) : mean;
+  for (int f : faces) {
+    const Vec3 d0 = corner(f, 0) - c.centre, d1 = corner(f, 1) - c.centre, d2 = corner(f, 2) - c.centre;
+    c.radius = std::max({c.radius, d0.norm(), d1.norm(), d2.norm()});
+    const Vec3 a = 0.5 * (d1 - d0).cross(d2 - d0);  // area times outward normal
+    const Vec3 sum = d0 + d1 + d2;
+    // (1/area) integral over the triangle of (p - c)(p - c)^T = (sum_i d_i d_i^T + s s^T) / 12
+    const Mat3 S = (d0 * d0.transpose() + d1 * d1.transpose() + d2 * d2.transpose() + sum * sum.transpose()) / 12.0;
+    c.N += a;
+    c.M += a * (sum / 3.0).transpose();
+    for (int i = 0; i < 3; ++i) c.Q[static_cast<std::size_t>(i)] += a[i] * S;
+  }
+  for (int i = 0; i < 3; ++i) {
+    c.P += c.Q[static_cast<std::size_t>(i)].row(i).transpose();
+    c.T[i] = c.Q[static_cast<std::size_t>(i)].trace();
+  }
+  return c;
+}
 
 // Clusters of about `size` consecutive triangles in Morton order of their centroids.
 ClusteredSurface make_clustered_surface(const TriMesh& mesh, int size) {
@@ -378,42 +439,31 @@ ClusteredSurface make_clustered_surface(const TriMesh& mesh, int size) {
       local_of[static_cast<std::size_t>(c.vertex[l])] = -1;
     }
     c.table = make_edge_table(c.local.F);
-    for (Mat3& q : c.Q) q.setZero();
-    // moments about the area-weighted centroid
-    double area = 0.0;
-    Vec3 weighted = Vec3::Zero();
-    for (Eigen::Index f = 0; f < c.local.F.rows(); ++f) {
-      const Vec3 a = c.local.V.row(c.local.F(f, 0)), b = c.local.V.row(c.local.F(f, 1)), d = c.local.V.row(c.local.F(f, 2));
-      const double A = 0.5 * (b - a).cross(d - a).norm();
-      area += A;
-      weighted += A * (a + b + d) / 3.0;
-    }
-    c.centre = area > 0.0 ? Vec3(weighted / area) : Vec3(c.local.V.colwise().mean().transpose());
-    for (Eigen::Index l = 0; l < c.local.V.rows(); ++l)
-      c.radius = std::max(c.radius, (c.local.V.row(l).transpose() - c.centre).norm());
-    for (Eigen::Index f = 0; f < c.local.F.rows(); ++f) {
-      const Vec3 d0 = c.local.V.row(c.local.F(f, 0)).transpose() - c.centre;
-      const Vec3 d1 = c.local.V.row(c.local.F(f, 1)).transpose() - c.centre;
-      const Vec3 d2 = c.local.V.row(c.local.F(f, 2)).transpose() - c.centre;
-      const Vec3 a = 0.5 * (d1 - d0).cross(d2 - d0);  // area times outward normal
-      const Vec3 sum = d0 + d1 + d2;
-      // (1/area) integral over the triangle of (p - c)(p - c)^T = (sum_i d_i d_i^T + s s^T) / 12
-      const Mat3 S = (d0 * d0.transpose() + d1 * d1.transpose() + d2 * d2.transpose() + sum * sum.transpose()) / 12.0;
-      c.N += a;
-      c.M += a * (sum / 3.0).transpose();
-      for (int i = 0; i < 3; ++i) c.Q[static_cast<std::size_t>(i)] += a[i] * S;
-    }
-    for (int i = 0; i < 3; ++i) {
-      c.P += c.Q[static_cast<std::size_t>(i)].row(i).transpose();
-      c.T[i] = c.Q[static_cast<std::size_t>(i)].trace();
-    }
+    std::vector<int> faces;
+    for (std::size_t k = start; k < end; ++k) faces.push_back(order[k].second);
+    c.far = make_far_field(mesh, faces);
     out.clusters.push_back(std::move(c));
+  }
+  out.cloud = std::make_unique<VertexCloud>(VertexCloud{&mesh.V});
+  out.tree = std::make_unique<VertexTree>(3, *out.cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10));
+  constexpr int kGroup = 16;  // clusters per group
+  const int nc = static_cast<int>(out.clusters.size());
+  for (int first = 0; first < nc; first += kGroup) {
+    ClusterGroup g;
+    g.first = first;
+    g.last = std::min(nc, first + kGroup);
+    std::vector<int> faces;
+    for (std::size_t k = static_cast<std::size_t>(first) * static_cast<std::size_t>(size);
+         k < std::min(order.size(), static_cast<std::size_t>(g.last) * static_cast<std::size_t>(size)); ++k)
+      faces.push_back(order[k].second);
+    g.far = make_far_field(mesh, faces);
+    out.groups.push_back(std::move(g));
   }
   return out;
 }
 
 // The cluster's share of the mean-value normaliser at x, by the expansion above (y = centre - x).
-double calc_far_field_sum(const FaceCluster& c, const Vec3& y) {
+double calc_far_field_sum(const FarField& c, const Vec3& y) {
   const double s = y.squaredNorm();
   const double inv2 = 1.0 / (s * s), inv3 = inv2 / s, inv4 = inv3 / s;
   const double zeroth = c.N.dot(y) * inv2;
@@ -430,7 +480,8 @@ struct ClusterScratch {
   VecX w;                     // per surface vertex (zero between calls)
   std::vector<int> covered;   // per surface vertex: near triangles that use it (zero between calls)
   std::vector<int> touched;
-  std::vector<double> distance2;  // per surface vertex: squared distance to x
+  std::vector<double> distance2;     // squared distances of x's k nearest vertices
+  std::vector<std::size_t> nearest;  // and their indices
 };
 
 // The k largest mean-value coordinates of x (then made affine by truncate_affine's correction):
@@ -451,40 +502,52 @@ bool calc_clustered_weights(const TriMesh& mesh, const ClusteredSurface& cs, con
   // d_k: the distance of x's k-th nearest vertex. Every cluster with a corner within 2 d_k of x is
   // near (so x's k nearest vertices, and any vertex up to 2 d_k away, have all their triangles
   // summed exactly and are candidates).
-  s.distance2.resize(static_cast<std::size_t>(mesh.V.rows()));
-  for (Eigen::Index j = 0; j < mesh.V.rows(); ++j)
-    s.distance2[static_cast<std::size_t>(j)] = (mesh.V.row(j).transpose() - x).squaredNorm();
-  std::nth_element(s.distance2.begin(), s.distance2.begin() + (k - 1), s.distance2.end());
-  const double near_m = 2.0 * std::sqrt(s.distance2[static_cast<std::size_t>(k - 1)]);
+  s.distance2.resize(static_cast<std::size_t>(k));
+  s.nearest.resize(static_cast<std::size_t>(k));
+  const std::size_t found = cs.tree->knnSearch(x.data(), static_cast<std::size_t>(k), s.nearest.data(), s.distance2.data());
+  if (found < static_cast<std::size_t>(k)) return false;
+  const double near_m = 2.0 * std::sqrt(*std::max_element(s.distance2.begin(), s.distance2.end()));
   double far = 0.0;
   bool on_surface = false;
-  for (const FaceCluster& c : cs.clusters) {
-    const Vec3 y = c.centre - x;
-    const double reach = std::max(ratio * c.radius, c.radius + near_m);
-    if (y.squaredNorm() > reach * reach) {
-      far += calc_far_field_sum(c, y);
+  const auto is_far = [&](const FarField& f, Vec3& y) {
+    y = f.centre - x;
+    const double reach = std::max(ratio * f.radius, f.radius + near_m);
+    return y.squaredNorm() > reach * reach;
+  };
+  for (const ClusterGroup& group : cs.groups) {
+    Vec3 y;
+    if (is_far(group.far, y)) {
+      far += calc_far_field_sum(group.far, y);
       continue;
     }
-    s.local_w.setZero(c.local.V.rows());
-    if (accumulate_mean_value_weights(c.local, c.table, x, eps, s.mvc, s.local_w)) {
-      // x on a vertex or triangle of this cluster: those coordinates are the answer
-      for (int g : s.touched) {
-        s.w[g] = 0.0;
-        s.covered[static_cast<std::size_t>(g)] = 0;
+    for (int ci = group.first; ci < group.last && !on_surface; ++ci) {
+      const FaceCluster& c = cs.clusters[static_cast<std::size_t>(ci)];
+      if (is_far(c.far, y)) {
+        far += calc_far_field_sum(c.far, y);
+        continue;
       }
-      s.touched.clear();
-      for (Eigen::Index l = 0; l < s.local_w.size(); ++l)
-        if (s.local_w[l] != 0.0) out.emplace_back(c.vertex[static_cast<std::size_t>(l)], s.local_w[l]);
-      std::sort(out.begin(), out.end());
-      on_surface = true;
-      break;
+      s.local_w.setZero(c.local.V.rows());
+      if (accumulate_mean_value_weights(c.local, c.table, x, eps, s.mvc, s.local_w)) {
+        // x on a vertex or triangle of this cluster: those coordinates are the answer
+        for (int g : s.touched) {
+          s.w[g] = 0.0;
+          s.covered[static_cast<std::size_t>(g)] = 0;
+        }
+        s.touched.clear();
+        for (Eigen::Index l = 0; l < s.local_w.size(); ++l)
+          if (s.local_w[l] != 0.0) out.emplace_back(c.vertex[static_cast<std::size_t>(l)], s.local_w[l]);
+        std::sort(out.begin(), out.end());
+        on_surface = true;
+        break;
+      }
+      for (std::size_t l = 0; l < c.vertex.size(); ++l) {
+        const int g = c.vertex[l];
+        if (s.covered[static_cast<std::size_t>(g)] == 0) s.touched.push_back(g);
+        s.covered[static_cast<std::size_t>(g)] += c.faces_at[l];
+        s.w[g] += s.local_w[static_cast<Eigen::Index>(l)];
+      }
     }
-    for (std::size_t l = 0; l < c.vertex.size(); ++l) {
-      const int g = c.vertex[l];
-      if (s.covered[static_cast<std::size_t>(g)] == 0) s.touched.push_back(g);
-      s.covered[static_cast<std::size_t>(g)] += c.faces_at[l];
-      s.w[g] += s.local_w[static_cast<Eigen::Index>(l)];
-    }
+    if (on_surface) break;
   }
   if (on_surface) return true;
   double sum = far;
