@@ -52,26 +52,58 @@ SparseMatrix calc_laplacian(const TriMesh& mesh, LaplacianKind kind) {
   return L;
 }
 
+namespace {
+
+// The rows of P (#V x 3, column-major) as one interleaved array x0 y0 z0 x1 ..., so a triangle's
+// corners are read as three contiguous triples instead of nine strided values.
+std::vector<double> interleave(const Points3& P) {
+  std::vector<double> out(static_cast<std::size_t>(P.rows()) * 3);
+  for (Eigen::Index i = 0; i < P.rows(); ++i)
+    for (int k = 0; k < 3; ++k) out[static_cast<std::size_t>(3 * i + k)] = P(i, k);
+  return out;
+}
+
+inline Vec3 get_row(const std::vector<double>& P, int i) {
+  const double* p = P.data() + 3 * static_cast<std::size_t>(i);
+  return Vec3(p[0], p[1], p[2]);
+}
+
+}  // namespace
+
 Points3 calc_volume_gradient(const Points3& V, const Triangles& F) {
-  Points3 G = Points3::Zero(V.rows(), 3);
+  // Same sums in the same (face) order as a direct loop over G's rows, on interleaved copies.
+  const std::vector<double> X = interleave(V);
+  std::vector<double> G(X.size(), 0.0);
+  const auto add = [&](int i, const Vec3& v) {
+    double* g = G.data() + 3 * static_cast<std::size_t>(i);
+    g[0] += v[0];
+    g[1] += v[1];
+    g[2] += v[2];
+  };
   for (Eigen::Index f = 0; f < F.rows(); ++f) {
-    const Vec3 a = V.row(F(f, 0)), b = V.row(F(f, 1)), c = V.row(F(f, 2));
+    const int i0 = F(f, 0), i1 = F(f, 1), i2 = F(f, 2);
+    const Vec3 a = get_row(X, i0), b = get_row(X, i1), c = get_row(X, i2);
     // d/da [a.(b x c)] = b x c, and cyclically; translation-invariant form (b-a) x (c-a) summed
     // gives the same total but this one is exact for the sum
-    G.row(F(f, 0)) += b.cross(c).transpose();
-    G.row(F(f, 1)) += c.cross(a).transpose();
-    G.row(F(f, 2)) += a.cross(b).transpose();
+    add(i0, b.cross(c));
+    add(i1, c.cross(a));
+    add(i2, a.cross(b));
   }
-  return G / 6.0;
+  Points3 out(V.rows(), 3);
+  for (Eigen::Index i = 0; i < V.rows(); ++i)
+    for (int k = 0; k < 3; ++k) out(i, k) = G[static_cast<std::size_t>(3 * i + k)] / 6.0;
+  return out;
 }
 
 std::array<double, 4> calc_volume_cubic(const Points3& X, const Points3& Y, const Triangles& F,
                                         const Vec3& origin) {
+  const std::vector<double> XI = interleave(X), YI = interleave(Y);
   std::array<double, 4> c{0.0, 0.0, 0.0, 0.0};
   for (Eigen::Index f = 0; f < F.rows(); ++f) {
-    const Vec3 a = X.row(F(f, 0)).transpose() - origin, da = Y.row(F(f, 0));
-    const Vec3 b = X.row(F(f, 1)).transpose() - origin, db = Y.row(F(f, 1));
-    const Vec3 cc = X.row(F(f, 2)).transpose() - origin, dc = Y.row(F(f, 2));
+    const int i0 = F(f, 0), i1 = F(f, 1), i2 = F(f, 2);
+    const Vec3 a = get_row(XI, i0) - origin, da = get_row(YI, i0);
+    const Vec3 b = get_row(XI, i1) - origin, db = get_row(YI, i1);
+    const Vec3 cc = get_row(XI, i2) - origin, dc = get_row(YI, i2);
     const Vec3 bc = b.cross(cc), bdc = b.cross(dc), dbc = db.cross(cc), dbdc = db.cross(dc);
     c[0] += a.dot(bc);
     c[1] += da.dot(bc) + a.dot(dbc + bdc);
