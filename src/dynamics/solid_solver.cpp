@@ -4,6 +4,7 @@
 // halving on failure and the exact volume projection per step (§4.4).
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/parallel.hpp"
+#include "fascicle/sparse/supernodal_solve.hpp"
 #include "internal.hpp"
 
 #include <Eigen/SparseCholesky>
@@ -18,126 +19,6 @@
 namespace fascicle {
 
 namespace {
-
-// Triangular solves with one supernode of CHOLMOD's supernodal LLᵀ (the factor is the library's;
-// only its application is ours). A supernode holds columns k1 .. k1 + nscol of L as a dense
-// nsrow x nscol column-major block whose row indices are rows[0 .. nsrow), the first nscol of them
-// k1 .. k1 + nscol. t0, t1: the right-hand sides gathered at those rows (t1 may be null).
-// Forward (L y = b): y_j = t_j / L_jj, then t_i −= L_ij y_j below it, in column order for every
-// t_i whatever the vector width. Backward (Lᵀ x = y): row j's dot product over i > j with four
-// partial sums combined as (s0 + s1) + (s2 + s3), then the tail in order. No FMA anywhere, so the
-// generic and the AVX2 clones give the same bits.
-// Forward solve of one supernode for NR (1 or 2) right-hand sides t[0..NR). Columns are taken four
-// at a time (the small triangle first, then every row below updated by the four columns in
-// column order): each t_i still sums in column order, but is loaded and stored once per four
-// columns.
-template <int NR>
-[[gnu::always_inline]] inline void supernode_forward_nr(const double* Lx, int nsrow, int nscol,
-                                                        double* const* t) {
-  int j = 0;
-  for (; j + 4 <= nscol; j += 4) {
-    const double* __restrict c0 = Lx + static_cast<std::ptrdiff_t>(j) * nsrow;
-    const double* __restrict c1 = c0 + nsrow;
-    const double* __restrict c2 = c1 + nsrow;
-    const double* __restrict c3 = c2 + nsrow;
-    double y[NR][4];
-    for (int r = 0; r < NR; ++r) {
-      double* tr = t[r];
-      const double y0 = tr[j] / c0[j];
-      tr[j] = y0;
-      tr[j + 1] -= c0[j + 1] * y0;
-      tr[j + 2] -= c0[j + 2] * y0;
-      tr[j + 3] -= c0[j + 3] * y0;
-      const double y1 = tr[j + 1] / c1[j + 1];
-      tr[j + 1] = y1;
-      tr[j + 2] -= c1[j + 2] * y1;
-      tr[j + 3] -= c1[j + 3] * y1;
-      const double y2 = tr[j + 2] / c2[j + 2];
-      tr[j + 2] = y2;
-      tr[j + 3] -= c2[j + 3] * y2;
-      const double y3 = tr[j + 3] / c3[j + 3];
-      tr[j + 3] = y3;
-      y[r][0] = y0;
-      y[r][1] = y1;
-      y[r][2] = y2;
-      y[r][3] = y3;
-    }
-    for (int r = 0; r < NR; ++r) {
-      double* __restrict tr = t[r];
-      const double y0 = y[r][0], y1 = y[r][1], y2 = y[r][2], y3 = y[r][3];
-      for (int i = j + 4; i < nsrow; ++i)
-        tr[i] = (((tr[i] - c0[i] * y0) - c1[i] * y1) - c2[i] * y2) - c3[i] * y3;
-    }
-  }
-  for (; j < nscol; ++j) {
-    const double* __restrict col = Lx + static_cast<std::ptrdiff_t>(j) * nsrow;
-    for (int r = 0; r < NR; ++r) {
-      double* __restrict tr = t[r];
-      const double yj = tr[j] / col[j];
-      tr[j] = yj;
-      for (int i = j + 1; i < nsrow; ++i) tr[i] -= col[i] * yj;
-    }
-  }
-}
-[[gnu::always_inline]] inline void supernode_forward_body(const double* Lx, int nsrow, int nscol,
-                                                          double* t0, double* t1) {
-  double* t[2] = {t0, t1};
-  if (t1) supernode_forward_nr<2>(Lx, nsrow, nscol, t);
-  else supernode_forward_nr<1>(Lx, nsrow, nscol, t);
-}
-// Four-lane partial sums (lane k: i ≡ begin + k mod 4) combined as (s0 + s1) + (s2 + s3), then
-// the tail in order: GCC's vector extension gives the same lanes on SSE2 and AVX2.
-typedef double V4d __attribute__((vector_size(32)));
-template <int NR>
-[[gnu::always_inline]] inline void dot4_nr(const double* __restrict a, double* const* b, int begin,
-                                           int end, double* out) {
-  V4d s[NR];
-  for (int r = 0; r < NR; ++r) s[r] = V4d{0.0, 0.0, 0.0, 0.0};
-  int i = begin;
-  for (; i + 4 <= end; i += 4) {
-    V4d av, bv;
-    std::memcpy(&av, a + i, sizeof av);
-    for (int r = 0; r < NR; ++r) {
-      std::memcpy(&bv, b[r] + i, sizeof bv);
-      s[r] += av * bv;
-    }
-  }
-  for (int r = 0; r < NR; ++r) {
-    double sum = (s[r][0] + s[r][1]) + (s[r][2] + s[r][3]);
-    for (int k = i; k < end; ++k) sum += a[k] * b[r][k];
-    out[r] = sum;
-  }
-}
-template <int NR>
-[[gnu::always_inline]] inline void supernode_backward_nr(const double* Lx, int nsrow, int nscol,
-                                                         double* const* t) {
-  for (int j = nscol - 1; j >= 0; --j) {
-    const double* __restrict col = Lx + static_cast<std::ptrdiff_t>(j) * nsrow;
-    double d[NR];
-    dot4_nr<NR>(col, t, j + 1, nsrow, d);
-    for (int r = 0; r < NR; ++r) t[r][j] = (t[r][j] - d[r]) / col[j];
-  }
-}
-[[gnu::always_inline]] inline void supernode_backward_body(const double* Lx, int nsrow, int nscol,
-                                                           double* t0, double* t1) {
-  double* t[2] = {t0, t1};
-  if (t1) supernode_backward_nr<2>(Lx, nsrow, nscol, t);
-  else supernode_backward_nr<1>(Lx, nsrow, nscol, t);
-}
-__attribute__((target("avx2"))) void supernode_forward_avx2(const double* Lx, int nsrow, int nscol,
-                                                            double* t0, double* t1) {
-  supernode_forward_body(Lx, nsrow, nscol, t0, t1);
-}
-void supernode_forward_generic(const double* Lx, int nsrow, int nscol, double* t0, double* t1) {
-  supernode_forward_body(Lx, nsrow, nscol, t0, t1);
-}
-__attribute__((target("avx2"))) void supernode_backward_avx2(const double* Lx, int nsrow,
-                                                             int nscol, double* t0, double* t1) {
-  supernode_backward_body(Lx, nsrow, nscol, t0, t1);
-}
-void supernode_backward_generic(const double* Lx, int nsrow, int nscol, double* t0, double* t1) {
-  supernode_backward_body(Lx, nsrow, nscol, t0, t1);
-}
 
 // CHOLMOD's LLᵀ of the free block of the backward-Euler matrix (the rows and columns of attached
 // dofs are identity with zero right-hand sides, so they are left out: fewer unknowns and no
@@ -229,21 +110,12 @@ class FreeBlockCholesky {
     L_ = cholmod_analyze(&S1, &c_);
     if (!L_) throw_internal("CHOLMOD could not analyse the permuted backward-Euler matrix");
     B_ = cholmod_allocate_dense(nf_, 2, nf_, CHOLMOD_REAL, &c_);
-    // The supernodal solve below needs the natural ordering (no permutation inside the factor).
+    // The supernodal solve below is used on the natural ordering only (nothing to permute).
     own_solve_ = !simplicial && L_->is_super && L_->itype == CHOLMOD_INT;
     if (own_solve_ && L_->Perm) {
       const int* P = static_cast<const int*>(L_->Perm);
       for (int k = 0; k < nf_; ++k) own_solve_ = own_solve_ && P[k] == k;
     }
-    if (own_solve_) {
-      const int* pi = static_cast<const int*>(L_->pi);
-      int maxrows = 0;
-      for (std::size_t sn = 0; sn < L_->nsuper; ++sn) maxrows = std::max(maxrows, pi[sn + 1] - pi[sn]);
-      t0_.assign(maxrows, 0.0);
-      t1_.assign(maxrows, 0.0);
-    }
-    __builtin_cpu_init();
-    avx2_ = __builtin_cpu_supports("avx2");
   }
 
   // Factorises the free block of the matrix whose values (in the analysed pattern) are given;
@@ -261,8 +133,9 @@ class FreeBlockCholesky {
     double* b = static_cast<double*>(B_->x);
     for (int j = 0; j < ncols; ++j)
       for (int k = 0; k < nf_; ++k) b[k + nf_ * j] = B[dof_[k] + full_ * j];
-    if (own_solve_ && L_->is_super && L_->is_ll) {
-      solve_supernodal(b, ncols == 2 ? b + nf_ : nullptr);
+    // Our own application of CHOLMOD's supernodal factor (fascicle/sparse): no BLAS calls per
+    // supernode for these one or two right-hand sides.
+    if (own_solve_ && solve_supernodal_llt(L_, b, ncols, nf_, own_workspace_)) {
       std::fill(X, X + static_cast<std::ptrdiff_t>(full_) * ncols, 0.0);
       for (int j = 0; j < ncols; ++j)
         for (int k = 0; k < nf_; ++k) X[dof_[k] + full_ * j] = b[k + nf_ * j];
@@ -282,41 +155,6 @@ class FreeBlockCholesky {
   }
 
  private:
-  // L Lᵀ x = b in place (b0, and b1 when not null), supernode by supernode on CHOLMOD's factor.
-  void solve_supernodal(double* b0, double* b1) {
-    const int* super = static_cast<const int*>(L_->super);
-    const int* pi = static_cast<const int*>(L_->pi);
-    const int* px = static_cast<const int*>(L_->px);
-    const int* ls = static_cast<const int*>(L_->s);
-    const double* lx = static_cast<const double*>(L_->x);
-    const int ns = static_cast<int>(L_->nsuper);
-    double* t0 = t0_.data();
-    double* t1 = b1 ? t1_.data() : nullptr;
-    auto forward = avx2_ ? supernode_forward_avx2 : supernode_forward_generic;
-    auto backward = avx2_ ? supernode_backward_avx2 : supernode_backward_generic;
-    for (int sn = 0; sn < ns; ++sn) {
-      const int nscol = super[sn + 1] - super[sn], nsrow = pi[sn + 1] - pi[sn];
-      const int* rows = ls + pi[sn];
-      for (int i = 0; i < nsrow; ++i) t0[i] = b0[rows[i]];
-      if (b1)
-        for (int i = 0; i < nsrow; ++i) t1[i] = b1[rows[i]];
-      forward(lx + px[sn], nsrow, nscol, t0, t1);
-      for (int i = 0; i < nsrow; ++i) b0[rows[i]] = t0[i];
-      if (b1)
-        for (int i = 0; i < nsrow; ++i) b1[rows[i]] = t1[i];
-    }
-    for (int sn = ns - 1; sn >= 0; --sn) {
-      const int nscol = super[sn + 1] - super[sn], nsrow = pi[sn + 1] - pi[sn];
-      const int* rows = ls + pi[sn];
-      for (int i = 0; i < nsrow; ++i) t0[i] = b0[rows[i]];
-      if (b1)
-        for (int i = 0; i < nsrow; ++i) t1[i] = b1[rows[i]];
-      backward(lx + px[sn], nsrow, nscol, t0, t1);
-      for (int i = 0; i < nscol; ++i) b0[rows[i]] = t0[i];
-      if (b1)
-        for (int i = 0; i < nscol; ++i) b1[rows[i]] = t1[i];
-    }
-  }
   cholmod_sparse get_view() {
     cholmod_sparse s{};
     s.nrow = s.ncol = static_cast<std::size_t>(nf_);
@@ -338,9 +176,9 @@ class FreeBlockCholesky {
                 *Y2_ = nullptr, *E2_ = nullptr;
   std::vector<int> p_, i_, src_, dof_;
   std::vector<double> x_;
-  std::vector<double> t0_, t1_;  // gathered right-hand sides of one supernode
+  SupernodalSolveWorkspace own_workspace_;  // scratch of the supernodal solve
   int nf_ = 0, full_ = 0;
-  bool own_solve_ = false, avx2_ = false;
+  bool own_solve_ = false;
 };
 
 }  // namespace
