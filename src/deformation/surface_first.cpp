@@ -4,6 +4,7 @@
 
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/parallel.hpp"
+#include "fascicle/sparse/supernodal_solve.hpp"
 
 #include <omp.h>
 
@@ -266,9 +267,15 @@ void use_single_threaded_cholmod() {
   use_single_threaded_blas();
 }
 
+// Eigen's CHOLMOD supernodal LL^T with its factor reachable (Eigen keeps it as a protected
+// member), so the solves can apply it with fascicle/sparse's kernels.
+struct CholmodLLT : Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> {
+  const void* get_factor() const { return m_cholmodFactor; }
+};
+
 // One sparse Cholesky factorisation (CHOLMOD supernodal LL^T or Eigen's simplicial LDL^T).
 struct SparseCholesky {
-  Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> cholmod;
+  CholmodLLT cholmod;
   Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower> ldlt;
   SparseSolverKind kind = SparseSolverKind::cholmod_supernodal;
 
@@ -291,11 +298,22 @@ struct SparseCholesky {
     return ldlt.info() == Eigen::Success;
   }
   bool kind_is_ldlt() const { return kind == SparseSolverKind::eigen_simplicial_ldlt; }
+  // The CHOLMOD factor is applied by fascicle/sparse's supernodal kernels (CHOLMOD's own solve
+  // spends most of its time in BLAS call overhead on these small supernodes for 3-6 columns);
+  // CHOLMOD's solve only if the factor is not a supernodal LL^T.
   Eigen::MatrixXd solve(const Eigen::MatrixXd& rhs) const {
     use_single_threaded_cholmod();
-    if (kind == SparseSolverKind::cholmod_supernodal) return cholmod.solve(rhs);
+    if (kind == SparseSolverKind::cholmod_supernodal) {
+      Eigen::MatrixXd x = rhs;
+      if (solve_supernodal_llt(cholmod.get_factor(), x.data(), static_cast<int>(x.cols()),
+                               static_cast<int>(x.rows()), workspace))
+        return x;
+      return cholmod.solve(rhs);
+    }
     return ldlt.solve(rhs);
   }
+  // Scratch of the supernodal solves (the solver is used by one thread at a time).
+  mutable SupernodalSolveWorkspace workspace;
 };
 
 // The base factor (no contacts; computed once) and the factor with the current contacts' weights

@@ -14,6 +14,9 @@ namespace fascicle {
 
 namespace {
 
+// Right-hand sides solved together in one pass over the factor (which may not fit in the cache).
+constexpr int kMaxBlock = 8;
+
 // A supernode holds columns k1 .. k1 + nscol of L as a dense nsrow x nscol column-major block
 // whose row indices are rows[0 .. nsrow), the first nscol of them k1 .. k1 + nscol. t[0 .. NR):
 // the right-hand sides gathered at those rows.
@@ -25,6 +28,9 @@ namespace {
 // Forward solve of one supernode: columns are taken four at a time (the small triangle first,
 // then every row below updated by the four columns in column order): each t_i still sums in
 // column order, but is loaded and stored once per four columns.
+// Four doubles (GCC's vector extension: the same element-wise operations on SSE2 and AVX2).
+typedef double V4d __attribute__((vector_size(32)));
+
 template <int NR>
 [[gnu::always_inline]] inline void supernode_forward_nr(const double* Lx, int nsrow, int nscol,
                                                         double* const* t) {
@@ -56,12 +62,28 @@ template <int NR>
       y[r][2] = y2;
       y[r][3] = y3;
     }
-    for (int r = 0; r < NR; ++r) {
-      double* __restrict tr = t[r];
-      const double y0 = y[r][0], y1 = y[r][1], y2 = y[r][2], y3 = y[r][3];
-      for (int i = j + 4; i < nsrow; ++i)
-        tr[i] = (((tr[i] - c0[i] * y0) - c1[i] * y1) - c2[i] * y2) - c3[i] * y3;
+    // Rows below: the four columns are read once for all NR right-hand sides (a supernode's
+    // block may be larger than the cache), four rows at a time; each t_i has the same operations
+    // as the scalar tail.
+    int i = j + 4;
+    for (; i + 4 <= nsrow; i += 4) {
+      V4d l0, l1, l2, l3;
+      std::memcpy(&l0, c0 + i, sizeof l0);
+      std::memcpy(&l1, c1 + i, sizeof l1);
+      std::memcpy(&l2, c2 + i, sizeof l2);
+      std::memcpy(&l3, c3 + i, sizeof l3);
+      for (int r = 0; r < NR; ++r) {
+        V4d tv;
+        std::memcpy(&tv, t[r] + i, sizeof tv);
+        tv = (((tv - l0 * y[r][0]) - l1 * y[r][1]) - l2 * y[r][2]) - l3 * y[r][3];
+        std::memcpy(t[r] + i, &tv, sizeof tv);
+      }
     }
+    for (; i < nsrow; ++i)
+      for (int r = 0; r < NR; ++r) {
+        double* tr = t[r];
+        tr[i] = (((tr[i] - c0[i] * y[r][0]) - c1[i] * y[r][1]) - c2[i] * y[r][2]) - c3[i] * y[r][3];
+      }
   }
   for (; j < nscol; ++j) {
     const double* __restrict col = Lx + static_cast<std::ptrdiff_t>(j) * nsrow;
@@ -76,7 +98,6 @@ template <int NR>
 
 // Four-lane partial sums (lane k: i ≡ begin + k mod 4) combined as (s0 + s1) + (s2 + s3), then
 // the tail in order: GCC's vector extension gives the same lanes on SSE2 and AVX2.
-typedef double V4d __attribute__((vector_size(32)));
 template <int NR>
 [[gnu::always_inline]] inline void dot4_nr(const double* __restrict a, double* const* b, int begin,
                                            int end, double* out) {
@@ -114,7 +135,11 @@ template <int NR>
     case 1: supernode_forward_nr<1>(Lx, nsrow, nscol, t); break;
     case 2: supernode_forward_nr<2>(Lx, nsrow, nscol, t); break;
     case 3: supernode_forward_nr<3>(Lx, nsrow, nscol, t); break;
-    default: supernode_forward_nr<4>(Lx, nsrow, nscol, t); break;
+    case 4: supernode_forward_nr<4>(Lx, nsrow, nscol, t); break;
+    case 5: supernode_forward_nr<5>(Lx, nsrow, nscol, t); break;
+    case 6: supernode_forward_nr<6>(Lx, nsrow, nscol, t); break;
+    case 7: supernode_forward_nr<7>(Lx, nsrow, nscol, t); break;
+    default: supernode_forward_nr<8>(Lx, nsrow, nscol, t); break;
   }
 }
 [[gnu::always_inline]] inline void supernode_backward_body(const double* Lx, int nsrow, int nscol,
@@ -123,7 +148,11 @@ template <int NR>
     case 1: supernode_backward_nr<1>(Lx, nsrow, nscol, t); break;
     case 2: supernode_backward_nr<2>(Lx, nsrow, nscol, t); break;
     case 3: supernode_backward_nr<3>(Lx, nsrow, nscol, t); break;
-    default: supernode_backward_nr<4>(Lx, nsrow, nscol, t); break;
+    case 4: supernode_backward_nr<4>(Lx, nsrow, nscol, t); break;
+    case 5: supernode_backward_nr<5>(Lx, nsrow, nscol, t); break;
+    case 6: supernode_backward_nr<6>(Lx, nsrow, nscol, t); break;
+    case 7: supernode_backward_nr<7>(Lx, nsrow, nscol, t); break;
+    default: supernode_backward_nr<8>(Lx, nsrow, nscol, t); break;
   }
 }
 __attribute__((target("avx2"))) void supernode_forward_avx2(const double* Lx, int nsrow, int nscol,
@@ -146,7 +175,8 @@ bool has_avx2() {
   return __builtin_cpu_supports("avx2");
 }
 
-// L Lᵀ x = b in place for nr (1..4) columns b[r] (unpermuted system), supernode by supernode.
+// L Lᵀ x = b in place for nr (1 .. kMaxBlock) columns b[r] (unpermuted system), supernode by
+// supernode.
 void solve_columns(const cholmod_factor& L, double* const* b, int nr, bool avx2,
                    std::vector<double>& gathered) {
   const int* super = static_cast<const int*>(L.super);
@@ -157,7 +187,7 @@ void solve_columns(const cholmod_factor& L, double* const* b, int nr, bool avx2,
   const int ns = static_cast<int>(L.nsuper);
   auto forward = avx2 ? supernode_forward_avx2 : supernode_forward_generic;
   auto backward = avx2 ? supernode_backward_avx2 : supernode_backward_generic;
-  double* t[4];
+  double* t[kMaxBlock];
   for (int sn = 0; sn < ns; ++sn) {
     const int nscol = super[sn + 1] - super[sn], nsrow = pi[sn + 1] - pi[sn];
     const int* rows = ls + pi[sn];
@@ -198,15 +228,15 @@ bool solve_supernodal_llt(const void* factor, double* B, int ncols, int ld,
   if (workspace.kernel == SupernodalKernel::automatic)
     workspace.kernel = has_avx2() ? SupernodalKernel::avx2 : SupernodalKernel::generic;
   const bool avx2 = workspace.kernel == SupernodalKernel::avx2;
-  const std::size_t chunk = static_cast<std::size_t>(std::min(ncols, 4));
-  // At most four columns of at most n rows of a supernode.
+  const std::size_t chunk = static_cast<std::size_t>(std::min(ncols, kMaxBlock));
+  // At most kMaxBlock columns of at most n rows of a supernode.
   if (workspace.gathered.size() < chunk * n) workspace.gathered.resize(chunk * n);
   const int* perm = static_cast<const int*>(L.Perm);
   const bool permuted = perm && L.ordering != CHOLMOD_NATURAL;
   if (permuted && workspace.permuted.size() < chunk * n) workspace.permuted.resize(chunk * n);
-  double* b[4];
-  for (int c0 = 0; c0 < ncols; c0 += 4) {
-    const int nr = std::min(4, ncols - c0);
+  double* b[kMaxBlock];
+  for (int c0 = 0; c0 < ncols; c0 += kMaxBlock) {
+    const int nr = std::min(kMaxBlock, ncols - c0);
     for (int r = 0; r < nr; ++r) {
       double* col = B + static_cast<std::ptrdiff_t>(c0 + r) * ld;
       if (permuted) {

@@ -137,9 +137,10 @@ TEST_F(SupernodalSolve, FactorIsPermutedAndSupernodal) {
   EXPECT_GE(widest, 8);  // and the four-column blocks of the kernels
 }
 
-TEST_F(SupernodalSolve, EqualsCholmodSolveForOneToSevenColumns) {
+// 1 .. 10 columns: every block width of the kernels (up to eight) and a second pass.
+TEST_F(SupernodalSolve, EqualsCholmodSolveForOneToTenColumns) {
   SupernodalSolveWorkspace ws;
-  for (int ncols = 1; ncols <= 7; ++ncols) {
+  for (int ncols = 1; ncols <= 10; ++ncols) {
     const std::vector<double> B = random_rhs(ncols, A_.n, 100u + ncols);
     const std::vector<double> ref = cholmod_reference(B, ncols);
     std::vector<double> X = B;
@@ -173,8 +174,9 @@ TEST_F(SupernodalSolve, EqualsCholmodSolveForOneToSevenColumns) {
 }
 
 TEST_F(SupernodalSolve, ColumnsAreIndependentOfTheirCountAndLeadingDimension) {
-  // Each column gives the same bits alone as within a block of seven with a padded ld.
-  const int ncols = 7, ld = A_.n + 5;
+  // Each column gives the same bits alone as within a block of eleven (eight, then three) with a
+  // padded ld.
+  const int ncols = 11, ld = A_.n + 5;
   const std::vector<double> B = random_rhs(ncols, ld, 31u);
   std::vector<double> X = B;
   SupernodalSolveWorkspace ws;
@@ -193,7 +195,7 @@ TEST_F(SupernodalSolve, ColumnsAreIndependentOfTheirCountAndLeadingDimension) {
 TEST_F(SupernodalSolve, GenericAndAvx2KernelsGiveIdenticalBits) {
   __builtin_cpu_init();
   if (!__builtin_cpu_supports("avx2")) GTEST_SKIP() << "no AVX2 on this CPU";
-  for (int ncols = 1; ncols <= 6; ++ncols) {
+  for (int ncols = 1; ncols <= 9; ++ncols) {
     const std::vector<double> B = random_rhs(ncols, A_.n, 500u + ncols);
     std::vector<double> Xg = B, Xa = B;
     SupernodalSolveWorkspace wg, wa;

@@ -16,8 +16,8 @@ enum class SupernodalKernel { automatic, generic, avx2 };
 // it has met the largest factor and column count). One per thread of use.
 struct SupernodalSolveWorkspace {
   SupernodalKernel kernel = SupernodalKernel::automatic;
-  std::vector<double> gathered;  // one supernode's rows of up to four right-hand sides
-  std::vector<double> permuted;  // P b for up to four right-hand sides (permuted factors only)
+  std::vector<double> gathered;  // one supernode's rows of up to eight right-hand sides
+  std::vector<double> permuted;  // P b for up to eight right-hand sides (permuted factors only)
 };
 
 // True when `factor` (a `const cholmod_factor*`) is one solve_supernodal_llt can apply: numeric,
@@ -25,10 +25,11 @@ struct SupernodalSolveWorkspace {
 bool is_supernodal_llt(const void* factor);
 
 // Solves A x = b in place for ncols right-hand sides stored column-major in B (leading dimension
-// ld ≥ n), where CHOLMOD factorised P A Pᵀ = L Lᵀ (P from the factor's Perm; skipped when it is
-// the identity): x = Pᵀ L⁻ᵀ L⁻¹ P b. Columns are independent and each gives the same bits whatever
-// ncols is. `factor` is a `const cholmod_factor*`. Returns false (B untouched) when
-// !is_supernodal_llt(factor); the caller then uses CHOLMOD's own solve.
+// ld ≥ n), where CHOLMOD factorised P A Pᵀ = L Lᵀ (P from the factor's Perm; skipped when the
+// ordering is natural): x = Pᵀ L⁻ᵀ L⁻¹ P b. Up to eight columns are solved in one pass over the
+// factor; columns are independent and each gives the same bits whatever ncols is. `factor` is a
+// `const cholmod_factor*`. Returns false (B untouched) when !is_supernodal_llt(factor); the caller
+// then uses CHOLMOD's own solve.
 bool solve_supernodal_llt(const void* factor, double* B, int ncols, int ld,
                           SupernodalSolveWorkspace& workspace);
 
