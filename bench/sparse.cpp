@@ -18,7 +18,7 @@
 namespace fascicle {
 namespace {
 
-// The soleus system of bench_deformation's BM_Soleus_AnkleRotation, factorised by CHOLMOD.
+// The VH soleus surface-first system, factorised by CHOLMOD.
 struct SoleusFactor {
   SparseMatrix K;
   cholmod_common c{};
@@ -27,19 +27,13 @@ struct SoleusFactor {
     const std::filesystem::path dir =
         std::filesystem::path(FASCICLE_DEFAULT_DATA_DIR) / "visible_human_female/right";
     const TriMesh soleus = read_mesh(dir / "VHF_Right_Muscle_Soleus_smooth.stl", LengthUnit::millimetre);
-    const double z0 = soleus.V.col(2).minCoeff(), z1 = soleus.V.col(2).maxCoeff();
-    std::vector<SurfaceAttachment> areas{{"origin", {}}, {"insertion", {}}};
-    Vec3 po = Vec3::Zero(), pi = Vec3::Zero();
-    for (int i = 0; i < soleus.V.rows(); ++i) {
-      const double t = (soleus.V(i, 2) - z0) / (z1 - z0);
-      if (t > 0.96) { areas[0].vertices.push_back(i); po += soleus.V.row(i).transpose(); }
-      if (t < 0.04) { areas[1].vertices.push_back(i); pi += soleus.V.row(i).transpose(); }
-    }
-    po /= areas[0].vertices.size();
-    pi /= areas[1].vertices.size();
+    // Action line along the mesh's z extent through its centroid, no attachment areas (the line
+    // weight makes the system definite): all 14,282 vertices free.
+    const Vec3 centre = soleus.V.colwise().mean().transpose();
     Points3 line(2, 3);
-    line << po.transpose(), pi.transpose();
-    K = bind_surface(soleus, line, areas, {}, {}, "soleus_r").system;
+    line << centre.x(), centre.y(), soleus.V.col(2).maxCoeff(), centre.x(), centre.y(),
+        soleus.V.col(2).minCoeff();
+    K = bind_surface(soleus, line, {}, {}, {}, "soleus_r").system;
     cholmod_start(&c);
     c.print = 0;
     c.supernodal = CHOLMOD_SUPERNODAL;
