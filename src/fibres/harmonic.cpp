@@ -593,6 +593,41 @@ FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea&
     set.fibres[i] = std::move(P);
     ok[i] = 1;
   };
+  // Traces from `per_area` stratified seeds on each area's surface to the other area, every fibre
+  // running origin -> insertion: the origin's fibres go to out[first + j], the insertion's to
+  // out[first + per_area + j]; flag[.] is 1 when the trace reached its target (always, when
+  // `any_end`). Seeds whose surface triangle has no tet behind it, or failed traces, leave their
+  // slot untouched.
+  const auto trace_from_areas = [&](int per_area, std::size_t first, std::vector<Points3>& out,
+                                    std::vector<char>& flag, bool any_end) {
+    const FaceKeys boundary = calc_boundary_faces(m);
+    const TriMesh& S = field.surface;
+    for (const bool at_origin : {true, false}) {
+      const AttachmentArea& area = at_origin ? origin : *insertion;
+      const std::vector<detail::WeightedTriangle> tris =
+          detail::make_area_weighted(S.V, S.F, area.triangles);
+      const std::vector<detail::TriangleSample> area_seeds = detail::sample_triangles(tris, per_area);
+      const std::size_t base = first + (at_origin ? 0 : static_cast<std::size_t>(per_area));
+      parallel_for(area_seeds.size(), [&](std::size_t j) {
+        const detail::WeightedTriangle& tri = tris[area_seeds[j].piece];
+        const int tet = find_boundary_tet(boundary, S, tri.tag);
+        if (tet < 0) return;
+        const Vec3 inward =
+            -(tri.corner[1] - tri.corner[0]).cross(tri.corner[2] - tri.corner[0]).normalized();
+        const Vec3 p_surface = area_seeds[j].point;
+        bool r = false;
+        const Points3 P =
+            (at_origin ? forward : backward).trace(p_surface + 1e-3 * edge * inward, tet, &r);
+        if (P.rows() < 2) return;
+        Points3 full(P.rows() + 1, 3);
+        full.row(0) = p_surface.transpose();
+        full.bottomRows(P.rows()) = P;
+        if (!at_origin) full = full.colwise().reverse().eval();
+        out[base + j] = resample_polyline(full, options.resolution);
+        flag[base + j] = any_end || r;
+      });
+    }
+  };
   if (options.seeding == TraceOptions::Seeding::volume && options.candidate_factor > 1) {
     // Oversampled volume seeds, every candidate traced; the fibres are chosen by farthest-point
     // order of their shapes (docs/fibres.md), candidates with both ends on their areas and
@@ -612,35 +647,7 @@ FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea&
       cand[i] = join_both_ways(seeds[i].point, seeds[i].tet, &r);
       reached[i] = r;
     });
-    if (per_area > 0) {
-      const FaceKeys boundary = calc_boundary_faces(m);
-      const TriMesh& S = field.surface;
-      for (const bool at_origin : {true, false}) {
-        const AttachmentArea& area = at_origin ? origin : *insertion;
-        const std::vector<detail::WeightedTriangle> tris =
-            detail::make_area_weighted(S.V, S.F, area.triangles);
-        const std::vector<detail::TriangleSample> area_seeds = detail::sample_triangles(tris, per_area);
-        const std::size_t first = nv + (at_origin ? 0 : per_area);
-        parallel_for(area_seeds.size(), [&](std::size_t j) {
-          const detail::WeightedTriangle& tri = tris[area_seeds[j].piece];
-          const int tet = find_boundary_tet(boundary, S, tri.tag);
-          if (tet < 0) return;
-          const Vec3 inward =
-              -(tri.corner[1] - tri.corner[0]).cross(tri.corner[2] - tri.corner[0]).normalized();
-          const Vec3 p_surface = area_seeds[j].point;
-          bool r = false;
-          const Points3 P =
-              (at_origin ? forward : backward).trace(p_surface + 1e-3 * edge * inward, tet, &r);
-          if (P.rows() < 2) return;
-          Points3 full(P.rows() + 1, 3);
-          full.row(0) = p_surface.transpose();
-          full.bottomRows(P.rows()) = P;
-          if (!at_origin) full = full.colwise().reverse().eval();
-          cand[first + j] = resample_polyline(full, options.resolution);
-          reached[first + j] = r;
-        });
-      }
-    }
+    if (per_area > 0) trace_from_areas(per_area, nv, cand, reached, false);
     constexpr int kShapePoints = 5;
     Eigen::MatrixXd shape(3 * kShapePoints, static_cast<Eigen::Index>(cand.size()));
     std::vector<int> first_tier, second_tier;
@@ -676,33 +683,8 @@ FibreSet trace_harmonic_fibres(const HarmonicField& field, const AttachmentArea&
     const std::vector<detail::TetSample> seeds = detail::sample_tets(m.V, m.T, n_volume);
     parallel_for(seeds.size(),
                  [&](std::size_t i) { trace_both_ways(i, seeds[i].point, seeds[i].tet); });
-    if (per_area > 0) {
-      const FaceKeys boundary = calc_boundary_faces(m);
-      const TriMesh& S = field.surface;
-      for (const bool at_origin : {true, false}) {
-        const AttachmentArea& area = at_origin ? origin : *insertion;
-        const std::vector<detail::WeightedTriangle> tris =
-            detail::make_area_weighted(S.V, S.F, area.triangles);
-        const std::vector<detail::TriangleSample> area_seeds = detail::sample_triangles(tris, per_area);
-        const std::size_t first = n_volume + (at_origin ? 0 : per_area);
-        parallel_for(area_seeds.size(), [&](std::size_t j) {
-          const detail::WeightedTriangle& tri = tris[area_seeds[j].piece];
-          const int tet = find_boundary_tet(boundary, S, tri.tag);
-          if (tet < 0) return;
-          const Vec3 inward =
-              -(tri.corner[1] - tri.corner[0]).cross(tri.corner[2] - tri.corner[0]).normalized();
-          const Vec3 p_surface = area_seeds[j].point;
-          const Points3 P = (at_origin ? forward : backward).trace(p_surface + 1e-3 * edge * inward, tet);
-          if (P.rows() < 2) return;
-          Points3 full(P.rows() + 1, 3);
-          full.row(0) = p_surface.transpose();
-          full.bottomRows(P.rows()) = P;
-          if (!at_origin) full = full.colwise().reverse().eval();
-          set.fibres[first + j] = resample_polyline(full, options.resolution);
-          ok[first + j] = 1;
-        });
-      }
-    }
+    if (per_area > 0)
+      trace_from_areas(per_area, static_cast<std::size_t>(n_volume), set.fibres, ok, true);
   } else if (options.seeding == TraceOptions::Seeding::level_set) {
     if (!(options.seed_level > 0.0 && options.seed_level < 1.0))
       throw_usage("the seed level of the harmonic potential must be in (0, 1)");
