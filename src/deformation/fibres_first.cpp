@@ -846,6 +846,53 @@ double push_surface_contact(const FibresFirstModel& model, SurfaceSeparation& ss
   return deficit;
 }
 
+// Surface particles (FibresFirstOptions::surface_particles): a contact between two particle
+// surfaces is the constraint C = (x_v - sum_i beta_i x_i) . n - min_gap >= 0 on the vertex
+// particle v and the face's three particles i (n the face's current outward unit normal). Its
+// projection with equal masses moves v by lambda n and particle i by -beta_i lambda n, with
+// lambda = -C / (1 + sum beta_i^2) (the barycentric weights are convex, so the step is bounded
+// by the deficit). Returns false when the contact is not between two particle surfaces or its
+// face is degenerate; `lambda` is 0 when the gap is met.
+bool calc_particle_contact_step(const FibresFirstModel& model, const SurfaceContact& c,
+                                const Points3& x, int& pv, int (&pf)[3], Vec3& n, double& lambda) {
+  const FibreBundle& ma = model.muscles[c.a];
+  const FibreBundle& mb = model.muscles[c.b];
+  if (ma.num_surface_particles == 0 || mb.num_surface_particles == 0) return false;
+  pv = ma.surface_weight_particle[c.v];
+  Vec3 corner[3];
+  for (int i = 0; i < 3; ++i) {
+    pf[i] = mb.surface_weight_particle[mb.surface_triangles(c.triangle, i)];
+    corner[i] = x.row(pf[i]).transpose();
+  }
+  n = (corner[1] - corner[0]).cross(corner[2] - corner[0]);
+  if (!(n.norm() > 0.0)) return false;
+  n.normalize();
+  const Vec3 point = c.barycentric[0] * corner[0] + c.barycentric[1] * corner[1] + c.barycentric[2] * corner[2];
+  const double C = (Vec3(x.row(pv).transpose()) - point).dot(n) - c.min_gap;
+  lambda = C < 0.0 ? -C / (1.0 + c.barycentric.squaredNorm()) : 0.0;
+  return true;
+}
+
+// Surface-particle contact targets of this iteration (Jacobi, like the pairs): each contact's
+// projection (calc_particle_contact_step) from the snapshot, accumulated into the per-particle
+// mean targets.
+void add_surface_particle_targets(const FibresFirstModel& model, FibresFirstSolver::Workspace& ws,
+                                  const Points3& snapshot) {
+  if (!ws.surfaces.enabled) return;
+  for (const SurfaceContact& c : ws.surfaces.contacts) {
+    int pv = -1, pf[3];
+    Vec3 n;
+    double lambda = 0.0;
+    if (!calc_particle_contact_step(model, c, snapshot, pv, pf, n, lambda)) continue;
+    ws.pair_target.row(pv) += snapshot.row(pv) + lambda * n.transpose();
+    ++ws.pair_count[pv];
+    for (int i = 0; i < 3; ++i) {
+      ws.pair_target.row(pf[i]) += snapshot.row(pf[i]) - (c.barycentric[i] * lambda) * n.transpose();
+      ++ws.pair_count[pf[i]];
+    }
+  }
+}
+
 }  // namespace
 
 namespace {
@@ -870,6 +917,18 @@ void update_factors(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
       const FibreBundle& m = model.muscles[model.muscle_of[p]];
       const int j = m.free_index[p - m.first_particle];
       if (j >= 0) ws.systems[model.muscle_of[p]]->weight[j] = ctx.contact_weight;
+    }
+  if (ws.surfaces.enabled)
+    for (const SurfaceContact& c : ws.surfaces.contacts) {
+      const FibreBundle& ma = model.muscles[c.a];
+      const FibreBundle& mb = model.muscles[c.b];
+      if (ma.num_surface_particles == 0 || mb.num_surface_particles == 0) continue;
+      auto set = [&](const FibreBundle& m, int mi, int p) {
+        const int j = m.free_index[p - m.first_particle];
+        if (j >= 0) ws.systems[mi]->weight[j] = ctx.contact_weight;
+      };
+      set(ma, c.a, ma.surface_weight_particle[c.v]);
+      for (int i = 0; i < 3; ++i) set(mb, c.b, mb.surface_weight_particle[mb.surface_triangles(c.triangle, i)]);
     }
   std::vector<int> refactor;
   for (int mi = 0; mi < nm; ++mi) {
@@ -1122,9 +1181,37 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
     auto movable = [&](int p) { return model.role[p] != ParticleRole::fixed && held[p] != 1; };
     for (int pass = 0; pass < 3; ++pass) {
       bool moved = false;
-      for (const SurfaceContact& c : ss.contacts)
+      for (const SurfaceContact& c : ss.contacts) {
+        int pv = -1, pf[3];
+        Vec3 n;
+        double lambda = 0.0;
+        if (calc_particle_contact_step(model, c, x, pv, pf, n, lambda)) {
+          // particle surfaces: the contact's own projection (surface particles are never fixed;
+          // one held against a bone does not move)
+          if (!(lambda > 0.0)) continue;
+          const bool v_moves = movable(pv);
+          double face_mass = 0.0;
+          for (int i = 0; i < 3; ++i) face_mass += movable(pf[i]) ? c.barycentric[i] * c.barycentric[i] : 0.0;
+          const double denominator = (v_moves ? 1.0 : 0.0) + face_mass;
+          if (!(denominator > 0.0)) continue;
+          const double l = lambda * (1.0 + c.barycentric.squaredNorm()) / denominator;
+          if (v_moves) x.row(pv) += l * n.transpose();
+          for (int i = 0; i < 3; ++i)
+            if (movable(pf[i])) x.row(pf[i]) -= (c.barycentric[i] * l) * n.transpose();
+          moved = true;
+          continue;
+        }
         moved = push_surface_contact(model, ss, c, x, movable, face) > 0.0 || moved;
+      }
       if (!moved) break;
+    }
+    for (const SurfaceContact& c : ss.contacts) {  // held by the volume step (particle surfaces)
+      const FibreBundle& ma = model.muscles[c.a];
+      const FibreBundle& mb = model.muscles[c.b];
+      if (ma.num_surface_particles == 0 || mb.num_surface_particles == 0) continue;
+      auto hold = [&](int p) { held[p] = std::max<char>(held[p], 2); };
+      hold(ma.surface_weight_particle[c.v]);
+      for (int i = 0; i < 3; ++i) hold(mb.surface_weight_particle[mb.surface_triangles(c.triangle, i)]);
     }
   };
   detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr);
@@ -1265,6 +1352,16 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
         if (model.role[p] == ParticleRole::free)
           x.row(p) = before.row(p) + ((1.0 - model.fibre_t[p]) * d0 + model.fibre_t[p] * d1).transpose();
     }
+    // surface particles whose nearest fibre has a carried end: the same interpolation, at that
+    // particle's position t along its fibre
+    for (int p = m.first_particle + m.num_fibres * P; p < m.first_particle + m.num_particles; ++p) {
+      const int a = model.surface_anchor[p];
+      if (a < 0) continue;
+      const int p0 = m.first_particle + (a - m.first_particle) / P * P, p1 = p0 + P - 1;
+      if (model.role[p0] != ParticleRole::carried && model.role[p1] != ParticleRole::carried) continue;
+      const Vec3 d0 = (x.row(p0) - before.row(p0)).transpose(), d1 = (x.row(p1) - before.row(p1)).transpose();
+      x.row(p) = before.row(p) + ((1.0 - model.fibre_t[p]) * d0 + model.fibre_t[p] * d1).transpose();
+    }
   }
   const Points3 guess = x;  // before the extrapolation: the correction is measured from it
   if (o.extrapolate_correction && ws.has_previous && ws.correction.rows() == N) x += ws.correction;
@@ -1315,6 +1412,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
       ++info_.iterations;
       snapshot = x;
       set_pair_targets(model, ws, snapshot);
+      add_surface_particle_targets(model, ws, snapshot);
       parallel_for(static_cast<std::size_t>(nm), [&](std::size_t mi) {
         if (!active[mi]) return;
         steps[mi] = relax_muscle(ctx, ws, static_cast<int>(mi), first[mi] != 0, snapshot, x,

@@ -124,7 +124,8 @@ void check_options(const FibresFirstOptions& o) {
       !(o.muscle_margin_m >= 0.0) || !(o.muscle_contact_band >= 0.0) || !(o.pair_list_skin_m >= 0.0) || !(o.end_attachment_distance_m >= 0.0) ||
       !(o.bone_attachment_distance_m >= 0.0) || !(std::abs(o.blend_a) <= 1.0) ||
       !(o.surface_margin_m >= 0.0) || !(o.surface_list_skin_m >= 0.0) ||
-      !(o.surface_rest_overlap_resolved_m >= 0.0))
+      !(o.surface_rest_overlap_resolved_m >= 0.0) || !positive(o.surface_stiffness) ||
+      o.surface_anchor_count < 1)
     throw_bad_input("invalid fibres-first options (density, weights, tolerances and time step must be "
                 "> 0; damping, margins and distances >= 0; |blend_a| <= 1)");
 }
@@ -383,6 +384,134 @@ bool build_loft_surface(FibreBundle& m, const TriMesh& surface, const Points3& r
   return true;
 }
 
+// Rest distances of every particle to the bones (clearance outside, depth inside), inside decided
+// by the solver's own rule (detail::calc_is_behind_bone) so that rest contacts are measured as in
+// every frame.
+void set_rest_bone_distances(FibresFirstModel& model) {
+  const int total = model.num_particles();
+  model.rest_bone_clearance.clear();
+  model.rest_bone_depth.clear();
+  for (const MeshQuery* bone : model.bones) {
+    const std::vector<ClosestPoint> closest = bone->calc_closest_points(model.rest);
+    VecX clearance(total);
+    VecX depth = VecX::Zero(total);
+    for (int p = 0; p < total; ++p) {
+      clearance[p] = closest[p].distance;
+      if (closest[p].triangle >= 0 &&
+          detail::calc_is_behind_bone(*bone, model.rest.row(p).transpose(), closest[p])) {
+        depth[p] = closest[p].distance;
+        clearance[p] = 0.0;
+      }
+    }
+    model.rest_bone_clearance.push_back(std::move(clearance));
+    model.rest_bone_depth.push_back(std::move(depth));
+  }
+}
+
+// Surface particles (FibresFirstOptions::surface_particles): every muscle with a loft surface gets
+// its loft vertices as free particles after its fibre particles (all particle indices after it
+// shift), each tied by springs at rest length to its surface_anchor_count nearest fibre particles
+// and along the loft's triangle edges; its surface weights become the identity on them.
+void add_surface_particles(FibresFirstModel& model) {
+  const FibresFirstOptions& o = model.options;
+  const int P = o.particles_per_fibre;
+  const int nm = static_cast<int>(model.muscles.size());
+  std::vector<int> extra(nm, 0), shift(nm, 0);
+  int added = 0;
+  for (int mi = 0; mi < nm; ++mi) {
+    shift[mi] = added;
+    if (model.muscles[mi].surface_from_rest_mesh) extra[mi] = model.muscles[mi].num_surface_vertices();
+    added += extra[mi];
+  }
+  if (added == 0) return;
+  const int old_total = model.num_particles(), total = old_total + added;
+  auto remap = [&](int p) { return p + shift[model.muscle_of[p]]; };
+  Points3 rest(total, 3);
+  std::vector<int> muscle_of(total), fixed_bone(total, -1), anchor(total, -1);
+  std::vector<double> fibre_t(total), line_fraction(total, std::numeric_limits<double>::quiet_NaN());
+  std::vector<ParticleRole> role(total, ParticleRole::free);
+  for (int p = 0; p < old_total; ++p) {
+    const int q = remap(p);
+    rest.row(q) = model.rest.row(p);
+    muscle_of[q] = model.muscle_of[p];
+    fibre_t[q] = model.fibre_t[p];
+    role[q] = model.role[p];
+    fixed_bone[q] = model.fixed_bone[p];
+    line_fraction[q] = model.line_fraction[p];
+  }
+  std::vector<Spring> springs;
+  std::vector<int> first_spring = {0};
+  for (int mi = 0; mi < nm; ++mi) {
+    FibreBundle& m = model.muscles[mi];
+    const int first = m.first_particle + shift[mi];
+    const int nfp = m.num_fibres * P;
+    for (int s = model.first_spring[mi]; s < model.first_spring[mi + 1]; ++s) {
+      Spring sp = model.springs[s];
+      sp.a = remap(sp.a);
+      sp.b = remap(sp.b);
+      springs.push_back(sp);
+    }
+    for (int& p : m.free) p = remap(p);
+    for (int& p : m.contact_particles) p = remap(p);
+    if (extra[mi] == 0) {
+      for (int& p : m.surface_weight_particle) p = remap(p);
+    } else {
+      const Points3 S = gather_surface_vertices(m, model.rest);
+      const int s0 = first + nfp;
+      auto add_spring = [&](int a, int b) {
+        springs.push_back({a, b, (rest.row(a) - rest.row(b)).norm(), o.surface_stiffness});
+      };
+      const int k = std::clamp(o.surface_anchor_count, 1, nfp);
+      std::vector<std::pair<double, int>> near(nfp);
+      for (int v = 0; v < extra[mi]; ++v) {
+        const int q = s0 + v;
+        rest.row(q) = S.row(v);
+        muscle_of[q] = mi;
+        for (int j = 0; j < nfp; ++j)
+          near[j] = {(model.rest.row(m.first_particle + j) - S.row(v)).squaredNorm(), first + j};
+        std::partial_sort(near.begin(), near.begin() + k, near.end());
+        anchor[q] = near[0].second;
+        fibre_t[q] = fibre_t[near[0].second];
+        for (int j = 0; j < k; ++j) add_spring(q, near[j].second);
+      }
+      std::set<std::pair<int, int>> edges;
+      for (Eigen::Index t = 0; t < m.surface_triangles.rows(); ++t)
+        for (int e = 0; e < 3; ++e) {
+          const int a = m.surface_triangles(t, e), b = m.surface_triangles(t, (e + 1) % 3);
+          edges.emplace(std::min(a, b), std::max(a, b));
+        }
+      for (const auto& [a, b] : edges) add_spring(s0 + a, s0 + b);
+      m.surface_weight_start.resize(extra[mi] + 1);
+      m.surface_weight_particle.resize(extra[mi]);
+      m.surface_weight.assign(extra[mi], 1.0);
+      for (int v = 0; v < extra[mi]; ++v) {
+        m.surface_weight_start[v] = v;
+        m.surface_weight_particle[v] = s0 + v;
+        m.free.push_back(s0 + v);
+      }
+      m.surface_weight_start[extra[mi]] = extra[mi];
+    }
+    m.first_particle = first;
+    m.num_particles = nfp + extra[mi];
+    m.num_surface_particles = extra[mi];
+    m.free_index.assign(m.num_particles, -1);
+    for (std::size_t j = 0; j < m.free.size(); ++j) m.free_index[m.free[j] - first] = static_cast<int>(j);
+    first_spring.push_back(static_cast<int>(springs.size()));
+  }
+  model.rest = std::move(rest);
+  model.muscle_of = std::move(muscle_of);
+  model.fibre_t = std::move(fibre_t);
+  model.role = std::move(role);
+  model.fixed_bone = std::move(fixed_bone);
+  model.line_fraction = std::move(line_fraction);
+  model.surface_anchor = std::move(anchor);
+  model.springs = std::move(springs);
+  model.first_spring = std::move(first_spring);
+  for (FibreBundle& m : model.muscles)
+    if (m.num_surface_particles > 0) set_rest_volume(m, model.rest);
+  set_rest_bone_distances(model);
+}
+
 }  // namespace
 
 FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& specs,
@@ -462,23 +591,8 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
     model.muscles.push_back(std::move(m));
   }
 
-  // rest distances to the bones (clearance outside, depth inside), inside decided by the solver's
-  // own rule (detail::calc_is_behind_bone) so that rest contacts are measured as in every frame
-  for (const MeshQuery* bone : bones) {
-    const std::vector<ClosestPoint> closest = bone->calc_closest_points(model.rest);
-    VecX clearance(total);
-    VecX depth = VecX::Zero(total);
-    for (int p = 0; p < total; ++p) {
-      clearance[p] = closest[p].distance;
-      if (closest[p].triangle >= 0 &&
-          detail::calc_is_behind_bone(*bone, model.rest.row(p).transpose(), closest[p])) {
-        depth[p] = closest[p].distance;
-        clearance[p] = 0.0;
-      }
-    }
-    model.rest_bone_clearance.push_back(std::move(clearance));
-    model.rest_bone_depth.push_back(std::move(depth));
-  }
+  set_rest_bone_distances(model);
+  model.surface_anchor.assign(total, -1);
   auto distance_to = [&](int bone, int p) {
     return model.rest_bone_clearance[bone][p];  // 0 inside
   };
@@ -626,6 +740,8 @@ FibresFirstModel build_fibres_first_model(const std::vector<FibreBundleSpec>& sp
     }
     if (!loft) build_tube_surface(m, model.rest, P, options.hold_volume);
   }
+
+  if (options.surface_particles) add_surface_particles(model);
 
   // masses (density x volume share)
   for (std::size_t mi = 0; mi < model.muscles.size(); ++mi) {

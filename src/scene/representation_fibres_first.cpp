@@ -57,6 +57,9 @@ class FibresFirst final : public MuscleGroupRepresentation {
     o.surface_margin_m = get_option(first, "surface_margin", o.surface_margin_m);
     o.surface_rest_overlap_resolved_m =
         get_option(first, "surface_rest_overlap_resolved", o.surface_rest_overlap_resolved_m);
+    // surface particles (see fibres_first.hpp): the loft's vertices as particles of the system
+    o.surface_particles = get_option(first, "surface_particles", o.surface_particles ? 1.0 : 0.0) != 0.0;
+    o.surface_stiffness = get_option(first, "surface_stiffness", o.surface_stiffness);
     o.dynamic = get_option(first, "dynamic", 0.0) != 0.0;
     o.damping_per_s = get_option(first, "damping", o.damping_per_s);
     o.max_iterations = static_cast<int>(get_option(first, "iterations", o.max_iterations));

@@ -359,9 +359,11 @@ double calc_deepest_vertex_inside(const Points3& vertices, const MeshQuery& othe
 }
 
 // Two crossing bundles whose display surfaces (boxes 1.5 mm outside their outer particles) are
-// pressed 5 mm into each other: particle separation alone leaves the surfaces overlapping; with
-// display-surface separation no vertex of one ends more than 0.5 mm inside the other.
-TEST(FibresFirst, DisplaySurfacesPressedTogetherDoNotOverlap) {
+// pressed 5 mm into each other over 6 frames. Returns muscle A's surface contacts at the end;
+// `deepest`: per muscle, its deepest vertex inside the other's surface (independent MeshQuery) at
+// the last frame. With separate_surfaces it asserts <= 0.5 mm at every frame; with
+// surface_particles also that every fibre particle stays inside its own surface (<= 0.1 mm out).
+int press_crossing_bundles(const FibresFirstOptions& o, std::vector<double>& deepest) {
   const double L = 0.06, gap = 0.003, half = 0.0045;
   const MeshQuery a0(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, -0.005)));
   const MeshQuery a1(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, L + 0.005)));
@@ -372,37 +374,116 @@ TEST(FibresFirst, DisplaySurfacesPressedTogetherDoNotOverlap) {
   A.rest_surface = moved(make_box(Vec3(half, half, L / 2)), Vec3(0, 0, L / 2));
   FibreBundleSpec B{"B", make_bundle(Vec3(x0, -L / 2, L / 2), Vec3::UnitY(), Vec3::UnitX(), L, 3, 3, gap), 2, 3};
   B.rest_surface = moved(make_box(Vec3(half, L / 2, half)), Vec3(x0, 0, L / 2));
-  auto run = [&](const FibresFirstOptions& o, std::vector<double>& deepest) {
-    const FibresFirstModel model = build_fibres_first_model({A, B}, {&a0, &a1, &b0, &b1}, o);
-    EXPECT_TRUE(model.muscles[0].surface_from_rest_mesh && model.muscles[1].surface_from_rest_mesh);
-    FibresFirstSolver solver(model);
-    for (int k = 1; k <= 6; ++k) {
-      const Transform T = translation(Vec3(-0.001 * k, 0, 0));
-      solver.calc_frame({{Transform::Identity(), Transform::Identity(), T, T}});
-      const auto& fr = solver.get_muscles();
-      deepest.assign(2, 0.0);
-      for (int m = 0; m < 2; ++m) {
-        const MeshQuery other(TriMesh{fr[1 - m].surface_vertices, model.muscles[1 - m].surface_triangles});
-        deepest[m] = calc_deepest_vertex_inside(fr[m].surface_vertices, other);
-        EXPECT_LT(fr[m].relative_volume_error, o.volume_tolerance) << "frame " << k;
-        if (o.separate_surfaces) {
-          EXPECT_LE(deepest[m], 5e-4) << model.muscles[m].name << ", frame " << k;
-          EXPECT_LE(fr[m].max_surface_overlap_m, 5e-4) << model.muscles[m].name << ", frame " << k;
-        }
+  const FibresFirstModel model = build_fibres_first_model({A, B}, {&a0, &a1, &b0, &b1}, o);
+  EXPECT_TRUE(model.muscles[0].surface_from_rest_mesh && model.muscles[1].surface_from_rest_mesh);
+  FibresFirstSolver solver(model);
+  const int fibre_particles = 9 * o.particles_per_fibre;
+  // how far each fibre particle lies outside its own surface (0: inside); at rest the fibre ends
+  // lie beyond the loft's end rings (3 % of the length): the particles inside at rest must stay
+  // inside (within 0.1 mm)
+  auto calc_outside = [&](const Points3& particles, const Points3& surface, int m) {
+    const MeshQuery own(TriMesh{surface, model.muscles[m].surface_triangles});
+    VecX out = VecX::Zero(fibre_particles);
+    for (int p = 0; p < fibre_particles; ++p) {
+      const Vec3 x = particles.row(p).transpose();
+      if (!own.calc_is_inside(x)) out[p] = own.calc_closest_point(x).distance;
+    }
+    return out;
+  };
+  std::vector<VecX> rest_outside(2);
+  for (int m = 0; m < 2 && o.surface_particles; ++m) {
+    const FibreBundle& b = model.muscles[m];
+    rest_outside[m] = calc_outside(model.rest.middleRows(b.first_particle, b.num_particles),
+                                   model.rest.middleRows(b.first_particle + fibre_particles, b.num_surface_particles), m);
+  }
+  for (int k = 1; k <= 6; ++k) {
+    const Transform T = translation(Vec3(-0.001 * k, 0, 0));
+    solver.calc_frame({{Transform::Identity(), Transform::Identity(), T, T}});
+    const auto& fr = solver.get_muscles();
+    deepest.assign(2, 0.0);
+    for (int m = 0; m < 2; ++m) {
+      const MeshQuery other(TriMesh{fr[1 - m].surface_vertices, model.muscles[1 - m].surface_triangles});
+      deepest[m] = calc_deepest_vertex_inside(fr[m].surface_vertices, other);
+      EXPECT_LT(fr[m].relative_volume_error, o.volume_tolerance) << "frame " << k;
+      if (o.separate_surfaces) {
+        EXPECT_LE(deepest[m], 5e-4) << model.muscles[m].name << ", frame " << k;
+        EXPECT_LE(fr[m].max_surface_overlap_m, 5e-4) << model.muscles[m].name << ", frame " << k;
+      }
+      if (o.surface_particles) {
+        const VecX out = calc_outside(fr[m].particles, fr[m].surface_vertices, m);
+        for (int p = 0; p < fibre_particles; ++p)
+          if (rest_outside[m][p] == 0.0) EXPECT_LE(out[p], 1e-4) << model.muscles[m].name << " particle " << p << ", frame " << k;
       }
     }
-    return solver.get_muscles()[0].surface_contacts;
-  };
+  }
+  return solver.get_muscles()[0].surface_contacts;
+}
+
+// Display-surface separation with the surface carried by the particles (loft weights): no vertex
+// ends more than 0.5 mm inside the other surface; with particle separation only, more than 1 mm.
+TEST(FibresFirst, DisplaySurfacesPressedTogetherDoNotOverlap) {
   FibresFirstOptions on;
   on.particles_per_fibre = 21;
   on.separate_surfaces = true;
   std::vector<double> deepest_on, deepest_off;
-  EXPECT_GT(run(on, deepest_on), 0);
-  // the same motion with particle separation only: the surfaces overlap by more than 1 mm
+  EXPECT_GT(press_crossing_bundles(on, deepest_on), 0);
   FibresFirstOptions off = on;
   off.separate_surfaces = false;
-  EXPECT_EQ(run(off, deepest_off), 0);
+  EXPECT_EQ(press_crossing_bundles(off, deepest_off), 0);
   EXPECT_GT(std::max(deepest_off[0], deepest_off[1]), 1e-3);
+}
+
+// The same with surface particles (the surface's vertices are particles, contacts are targets of
+// the global step): separated to <= 0.5 mm, fibres inside their surfaces; without separation the
+// surfaces overlap by more than 1 mm.
+TEST(FibresFirst, SurfaceParticlesPressedTogetherDoNotOverlap) {
+  FibresFirstOptions on;
+  on.surface_particles = true;
+  on.separate_surfaces = true;
+  std::vector<double> deepest_on, deepest_off;
+  EXPECT_GT(press_crossing_bundles(on, deepest_on), 0);
+  FibresFirstOptions off = on;
+  off.separate_surfaces = false;
+  EXPECT_EQ(press_crossing_bundles(off, deepest_off), 0);
+  EXPECT_GT(std::max(deepest_off[0], deepest_off[1]), 1e-3);
+}
+
+// Surface particles: the loft's vertices are particles after the fibre particles, with weight 1;
+// a rigid motion of both bones moves the surface rigidly (1e-9 m), and a 25 % stretch keeps the
+// volume of the surface within 1e-3.
+TEST(FibresFirst, SurfaceParticlesMoveRigidlyAndHoldVolume) {
+  const double L = 0.08;
+  const EndBones bones(L);
+  FibreBundleSpec spec{"surface", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 4, 4, 0.004), 0, 1};
+  spec.rest_surface = moved(make_box(Vec3(0.0075, 0.0075, L / 2)), Vec3(0, 0, L / 2));
+  FibresFirstOptions o = tight_options();
+  o.surface_particles = true;
+  const FibresFirstModel model = build_fibres_first_model({spec}, bones.list(), o);
+  const FibreBundle& m = model.muscles[0];
+  ASSERT_TRUE(m.surface_from_rest_mesh);
+  EXPECT_EQ(m.num_surface_particles, o.surface_rings * o.surface_ring_points);
+  EXPECT_EQ(m.num_particles, 16 * o.particles_per_fibre + m.num_surface_particles);
+  EXPECT_EQ(m.surface_weight_particle.front(), m.first_particle + 16 * o.particles_per_fibre);
+  {
+    FibresFirstSolver solver(model);
+    Transform T = Transform::Identity();
+    T.translate(Vec3(0.01, -0.02, 0.03)).rotate(Eigen::AngleAxisd(0.7, Vec3(1, 2, 3).normalized()));
+    solver.calc_frame({{T, T}});
+    const Points3 rest_surface = model.rest.bottomRows(m.num_surface_particles);
+    const Points3 expected = (rest_surface * T.linear().transpose()).rowwise() + T.translation().transpose();
+    EXPECT_LT((solver.get_muscles()[0].surface_vertices - expected).cwiseAbs().maxCoeff(), 1e-9);
+    EXPECT_LT(solver.get_muscles()[0].relative_volume_error, 1e-12);
+  }
+  FibresFirstOptions d;  // the solver's defaults otherwise
+  d.surface_particles = true;
+  const FibresFirstModel stretched = build_fibres_first_model({spec}, bones.list(), d);
+  FibresFirstSolver solver(stretched);
+  for (int k = 1; k <= 5; ++k) {
+    solver.calc_frame({{Transform::Identity(), translation(Vec3(0, 0, 0.004 * k))}});
+    EXPECT_LT(solver.get_muscles()[0].relative_volume_error, 1e-3) << "frame " << k;
+  }
+  // the surface really stretched with the fibres (its top ring follows the moved bone)
+  EXPECT_GT(solver.get_muscles()[0].surface_vertices.col(2).maxCoeff(), model.rest.col(2).maxCoeff() + 0.01);
 }
 
 // A corner of a bundle pressed by two blocks at once (one moving in -x, one in -y): the corner

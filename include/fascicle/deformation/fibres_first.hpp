@@ -115,6 +115,17 @@ struct FibresFirstOptions {
   // volume hold then fails (> 0.5 %) within a few frames.
   bool separate_surfaces = false;
   double surface_margin_m = 2e-4;
+  // Surface particles (muscles with a loft display surface): the loft's vertices become particles
+  // of the system, appended after the muscle's fibre particles and tied by springs at their rest
+  // lengths (stiffness surface_stiffness, N/m) to their surface_anchor_count nearest fibre
+  // particles and to their loft neighbours (the loft's triangle edges). The display surface is
+  // then these particles themselves (weights 1): its volume is held directly, and with
+  // separate_surfaces its contacts are particle targets of the global step, like bone contacts (a
+  // vertex against the opposite face's three particles with their barycentric weights); see
+  // docs/representations.md, "Surface particles".
+  bool surface_particles = false;
+  int surface_anchor_count = 6;
+  double surface_stiffness = 400.0;
   double surface_rest_overlap_resolved_m = 5e-3;
   // Skin of the surface-vertex candidate list (a Verlet list like pair_list_skin_m): rebuilt
   // once some surface vertex has moved more than half of it.
@@ -150,6 +161,10 @@ struct FibreBundle {
   int first_particle = 0;   // particles [first_particle, first_particle + num_particles)
   int num_particles = 0;
   int num_fibres = 0;       // particle (f, i) = first_particle + f * particles_per_fibre + i
+  // surface particles (options.surface_particles, loft only): rows
+  // [first_particle + num_fibres * particles_per_fibre, first_particle + num_particles), one per
+  // display-surface vertex in vertex order
+  int num_surface_particles = 0;
   Points3 rest_action_line; // the spec's action line (empty: none)
   std::vector<int> free;    // model particle indices of its free particles (sorted)
   std::vector<int> free_index;  // per muscle particle: index into `free`, or -1
@@ -197,6 +212,9 @@ struct FibresFirstModel {
   std::vector<int> fixed_bone;           // per particle: bone it follows (fixed), or -1
   std::vector<double> line_fraction;     // per particle: arc-length fraction on the rest action
                                          // line (carried), or NaN
+  // per particle: for a surface particle (options.surface_particles) its nearest fibre particle
+  // at rest (the initial guess moves it with that particle's fibre), else -1
+  std::vector<int> surface_anchor;
   std::vector<Spring> springs;           // grouped by muscle
   std::vector<int> first_spring;         // per muscle, plus one past the end
   // Per bone, per particle: distance to the bone surface at rest when outside it (culls contact
@@ -233,7 +251,8 @@ struct FibresFirstInput {
 // beyond their rest depth; overlap is over boundary-fibre particles of different muscles, against
 // min(muscle_margin_m, rest distance).
 struct FibreBundleFrame {
-  Points3 particles;  // #particles x 3 (fibre-major: fibre f, particle i at row f * P + i)
+  Points3 particles;  // #particles x 3 (fibre-major: fibre f, particle i at row f * P + i; then
+                      // the surface particles, if any)
   Points3 surface_vertices;  // display surface vertices; triangles: bundle.surface_triangles
   double volume_m3 = std::numeric_limits<double>::quiet_NaN();
   double relative_volume_error = std::numeric_limits<double>::quiet_NaN();  // |V - V0| / V0
