@@ -63,6 +63,59 @@ void BM_TemplateFibresSectionStarts(benchmark::State& state) {
 }
 BENCHMARK(BM_TemplateFibresSectionStarts)->Unit(benchmark::kMillisecond);
 
+// Muscles with side attachment areas (session 8): the VH soleus (tibial/fibular strip; the
+// automatic rule slices it by the Laplace field, so the set-up includes TetGen and the solve)
+// and the VH TA (one tibial contact split at mid-length: planes with side re-routing). Bone
+// areas as in the quality test; Arg 0 = soleus, 1 = TA.
+struct SideCase {
+  TriMesh muscle;
+  Attachments areas;
+};
+
+const SideCase& side_case(int i) {
+  static const auto load = [](const std::string& m, const std::vector<std::string>& bones) {
+    SideCase c;
+    c.muscle = read_mesh(data / (vh + m), LengthUnit::millimetre);
+    std::vector<TriMesh> b;
+    for (const auto& name : bones) b.push_back(read_mesh(data / (vh + name), LengthUnit::millimetre));
+    c.areas = find_bone_attachments(c.muscle, b, 0.002);
+    return c;
+  };
+  static const SideCase soleus = load("Muscle_Soleus_smooth.stl",
+                                      {"Bone_Tibia_smooth.stl", "Bone_Fibula_smooth.stl"});
+  static const SideCase ta = load("Muscle_TibialisAnterior_smooth.stl", {"Bone_Tibia_smooth.stl"});
+  return i == 0 ? soleus : ta;
+}
+
+void BM_TemplateSetupSideAreas(benchmark::State& state) {
+  const SideCase& c = side_case(static_cast<int>(state.range(0)));
+  bool field = false;
+  for (auto _ : state) {
+    TemplateMapper mapper(c.muscle, c.areas);
+    field = mapper.uses_field_slicing();
+    benchmark::DoNotOptimize(mapper);
+  }
+  state.counters["triangles"] = static_cast<double>(c.muscle.num_faces());
+  state.SetLabel(field ? "soleus, field slicing" : "VH TA, planes + side re-routing");
+}
+BENCHMARK(BM_TemplateSetupSideAreas)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
+void BM_TemplateFibresSideAreas(benchmark::State& state) {
+  const SideCase& c = side_case(static_cast<int>(state.range(0)));
+  const TemplateMapper mapper(c.muscle, c.areas);
+  for (auto _ : state) {
+    const FibreSet unit = make_template_fibres(FibreTemplate::parallel,
+                                               mapper.calc_section_samples(100), 16,
+                                               default_pennate_rise);
+    FibreSet f = mapper.calc_fibres(unit, true);
+    benchmark::DoNotOptimize(f);
+  }
+  state.counters["triangles"] = static_cast<double>(c.muscle.num_faces());
+  state.SetLabel(mapper.uses_field_slicing() ? "soleus, field slicing"
+                                             : "VH TA, planes + side re-routing");
+}
+BENCHMARK(BM_TemplateFibresSideAreas)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
 void BM_Tetrahedralise(benchmark::State& state) {
   TetOptions opt;
   opt.max_radius_edge_ratio = state.range(0) ? 2.0 : 0.0;

@@ -3,6 +3,7 @@
 
 #include "fascicle/core/error.hpp"
 #include "fascicle/geometry/mesh_query.hpp"
+#include "fascicle/fibres/harmonic.hpp"
 #include "fascicle/geometry/slicing.hpp"
 #include "sampling.hpp"
 
@@ -14,6 +15,7 @@
 #include <cstdint>
 #include <limits>
 #include <numeric>
+#include <unordered_map>
 
 namespace fascicle {
 
@@ -75,6 +77,166 @@ void resample_piece(const Points3& P, int a, int b, int m, Points3& out, int out
   }
 }
 
+// A slice contour resampled to match the unit square's boundary samples: split at its extreme
+// points in the four diagonal directions of the in-plane frame (ex, ey) and each quarter
+// resampled by arc length; with its in-plane coordinates relative to o, its thickness along ex
+// (area / extent along ey) and the mean mapped crossing (TemplateMapper::get_mean_crossing).
+struct ResampledContour {
+  Points3 points;
+  Poly2 xy;
+  double thickness = 0.0;
+  double crossing = 0.0;
+};
+
+ResampledContour resample_contour(const Points3& C, const Vec3& ex, const Vec3& ey, const Vec3& o,
+                                  int samples) {
+  ResampledContour r;
+  const int q = samples / 4;
+  const int n = static_cast<int>(C.rows());
+  // Contour in box coordinates, normalised by its bounding box.
+  Poly2 xy(n, 2);
+  xy.col(0) = C * ex;
+  xy.col(1) = C * ey;
+  const Eigen::RowVector2d lo = xy.colwise().minCoeff(), hi = xy.colwise().maxCoeff();
+  const Eigen::RowVector2d ext = (hi - lo).cwiseMax(1e-300);
+  // Corners: the extreme contour points in the four diagonal directions.
+  std::array<int, 4> corner{};
+  const std::array<Vec2, 4> dir{Vec2(-1, -1), Vec2(1, -1), Vec2(1, 1), Vec2(-1, 1)};
+  for (int j = 0; j < 4; ++j) {
+    double best_v = -1e300;
+    for (int i = 0; i < n; ++i) {
+      const Vec2 u = ((xy.row(i) - lo).cwiseQuotient(ext)).transpose();
+      const double v = dir[j].dot(u);
+      if (v > best_v) {
+        best_v = v;
+        corner[j] = i;
+      }
+    }
+  }
+  const auto offset = [&](int j) { return (corner[j] - corner[0] + n) % n; };
+  const bool ordered = offset(1) > 0 && offset(2) > offset(1) && offset(3) > offset(2);
+  if (!ordered) {
+    // Fall back to equal arc-length quarters from the first corner.
+    std::vector<double> cum(n + 1, 0.0);
+    for (int i = 0; i < n; ++i)
+      cum[i + 1] = cum[i] + (C.row((corner[0] + i + 1) % n) - C.row((corner[0] + i) % n)).norm();
+    for (int j = 1; j < 4; ++j) {
+      const double target = cum[n] * j / 4.0;
+      const int i = static_cast<int>(std::lower_bound(cum.begin(), cum.end(), target) - cum.begin());
+      corner[j] = (corner[0] + std::clamp(i, j, n - 4 + j)) % n;
+    }
+  }
+  Points3& out = r.points;
+  out.resize(samples, 3);
+  for (int j = 0; j < 4; ++j) resample_piece(C, corner[j], corner[(j + 1) % 4], q, out, j * q);
+  Poly2& out_xy = r.xy;
+  out_xy.resize(out.rows(), 2);
+  const Points3 rel = out.rowwise() - o.transpose();
+  out_xy.col(0) = rel * ex;
+  out_xy.col(1) = rel * ey;
+  {
+    // Thickness along x: contour area / extent along y.
+    double area2 = 0.0;
+    for (Eigen::Index i = 0, j = out_xy.rows() - 1; i < out_xy.rows(); j = i++)
+      area2 += out_xy(j, 0) * out_xy(i, 1) - out_xy(i, 0) * out_xy(j, 1);
+    const double width = out_xy.col(1).maxCoeff() - out_xy.col(1).minCoeff();
+    if (width > 0.0) r.thickness = 0.5 * std::abs(area2) / width;
+  }
+  {
+    // Crossing: the mapped square boundary points (0, y) and (1, y) are the contour points at
+    // perimeter parameters 3 + (1 - y) and 1 + y (counter-clockwise from (0,0), q per side).
+    const auto at = [&](double t) {
+      const double idx = t * q;
+      const int i0 = static_cast<int>(std::floor(idx)) % samples;
+      const int i1 = (i0 + 1) % samples;
+      const double w = idx - std::floor(idx);
+      return Vec3((1 - w) * out.row(i0) + w * out.row(i1));
+    };
+    double crossing = 0.0;
+    for (int j = 1; j <= 9; ++j) {
+      const double y = 0.1 * j;
+      crossing += (at(1.0 + y) - at(3.0 + (1.0 - y))).norm() / 9.0;
+    }
+    r.crossing = crossing;
+  }
+  return r;
+}
+
+// Closed iso-lines u = t of a per-vertex scalar on a closed triangle mesh (marching triangles),
+// each an ordered loop. Vertices with u >= t count as above. In every triangle the line runs
+// from the edge entered (below -> above in the triangle's order) to the edge left, so the
+// loops have one orientation relative to the side where u > t, and neighbouring triangles
+// continue each other through their shared edge.
+std::vector<Points3> calc_iso_loops(const TriMesh& mesh, const VecX& u, double t) {
+  const std::int64_t nv = mesh.V.rows();
+  std::unordered_map<std::int64_t, int> crossing_id;
+  std::vector<Vec3> point;
+  std::vector<int> next;
+  const auto crossing = [&](int i, int j) {
+    const std::int64_t key = std::min(i, j) * nv + std::max(i, j);
+    const auto [it, added] = crossing_id.emplace(key, static_cast<int>(point.size()));
+    if (added) {
+      const double w = (t - u(i)) / (u(j) - u(i));
+      point.emplace_back(Vec3(mesh.V.row(i)) + w * (Vec3(mesh.V.row(j)) - Vec3(mesh.V.row(i))));
+      next.push_back(-1);
+    }
+    return it->second;
+  };
+  for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
+    int entry = -1, exit = -1;
+    for (int e = 0; e < 3; ++e) {
+      const int i = mesh.F(f, e), j = mesh.F(f, (e + 1) % 3);
+      const bool ai = u(i) >= t, aj = u(j) >= t;
+      if (!ai && aj) entry = crossing(i, j);
+      if (ai && !aj) exit = crossing(i, j);
+    }
+    if (entry >= 0 && exit >= 0) next[entry] = exit;
+  }
+  std::vector<Points3> loops;
+  std::vector<char> seen(point.size(), 0);
+  for (std::size_t s = 0; s < point.size(); ++s) {
+    if (seen[s]) continue;
+    std::vector<int> chain;
+    int c = static_cast<int>(s);
+    while (c >= 0 && !seen[c]) {
+      seen[c] = 1;
+      chain.push_back(c);
+      c = next[c];
+    }
+    if (c != static_cast<int>(s) || chain.size() < 3) continue;  // open chain (open mesh)
+    Points3 L(static_cast<Eigen::Index>(chain.size()), 3);
+    for (std::size_t k = 0; k < chain.size(); ++k) L.row(static_cast<Eigen::Index>(k)) = point[chain[k]].transpose();
+    loops.push_back(std::move(L));
+  }
+  return loops;
+}
+
+// Vector area of a closed polyline: (1/2) sum p_i x p_i+1 (its normal by the right-hand rule).
+Vec3 calc_vector_area(const Points3& L) {
+  Vec3 A = Vec3::Zero();
+  for (Eigen::Index i = 0, j = L.rows() - 1; i < L.rows(); j = i++)
+    A += 0.5 * Vec3(L.row(j)).cross(Vec3(L.row(i)));
+  return A;
+}
+
+// Range of an area's vertices along the unit direction e, as fractions of the muscle's extent
+// along e from its lowest point.
+struct AxialRange {
+  double lo = 0.0, hi = 0.0;
+};
+
+AxialRange calc_axial_range(const TriMesh& muscle, const AttachmentArea& area, const Vec3& e) {
+  const VecX s = muscle.V * e;
+  const double smin = s.minCoeff(), whole = s.maxCoeff() - smin;
+  if (area.vertices.empty() || !(whole > 0.0)) return {};
+  AxialRange r{std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity()};
+  for (int v : area.vertices) {
+    r.lo = std::min(r.lo, (s(v) - smin) / whole);
+    r.hi = std::max(r.hi, (s(v) - smin) / whole);
+  }
+  return r;
+}
+
 }  // namespace
 
 struct TemplateMapper::Slices {
@@ -125,12 +287,32 @@ TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
     ex = -ex;
     ey = ez.cross(ex);  // keep the frame right-handed
   }
-  // Axial range: from the origin level to the insertion level, kept clear of the tips.
+  // Slicing (TemplateMapOptions::slicing) and side areas (an area whose extent along the axis
+  // exceeds side_area_extent of the muscle's).
+  const AxialRange range_o = calc_axial_range(muscle, areas.origin, ez);
+  const AxialRange range_i = calc_axial_range(muscle, areas.insertion, ez);
+  side_areas_ = range_o.hi - range_o.lo > options.side_area_extent ||
+                range_i.hi - range_i.lo > options.side_area_extent;
+  switch (options.slicing) {
+    case TemplateMapOptions::Slicing::planes: field_slicing_ = false; break;
+    case TemplateMapOptions::Slicing::field: field_slicing_ = true; break;
+    case TemplateMapOptions::Slicing::automatic: {
+      const double gap = std::max(range_i.lo - range_o.hi, range_o.lo - range_i.hi);
+      field_slicing_ = side_areas_ && gap > options.min_area_gap;
+      break;
+    }
+  }
+  // Axial range: from the origin level to the insertion level, kept clear of the tips. Planes
+  // with side areas: from the origin area's far end to the insertion area's far end, so the
+  // slices reach the whole belly the areas lie along.
   const VecX s = muscle.V * ez;
   const double smin = s.minCoeff(), smax = s.maxCoeff();
   const double margin = options.end_margin * (smax - smin);
-  const double a = std::clamp(areas.origin.centroid.dot(ez), smin + margin, smax - margin);
-  const double b = std::clamp(areas.insertion.centroid.dot(ez), smin + margin, smax - margin);
+  const bool whole_range = side_areas_ && !field_slicing_ && options.side_reroute;
+  const double a = std::clamp(whole_range ? smin + range_o.lo * (smax - smin) : areas.origin.centroid.dot(ez),
+                              smin + margin, smax - margin);
+  const double b = std::clamp(whole_range ? smin + range_i.hi * (smax - smin) : areas.insertion.centroid.dot(ez),
+                              smin + margin, smax - margin);
   if (!(b > a)) throw_bad_input("the attachment areas are not at the two ends of the muscle");
   axial_length_ = b - a;
   Mat3 R;
@@ -142,104 +324,127 @@ TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
   slices_->samples = options.contour_samples / 4 * 4;
   slices_->square = make_square_boundary(slices_->samples);
   const int K = options.num_slices;
-  VecX offsets(K);
-  for (int k = 0; k < K; ++k) offsets(k) = a + (b - a) * k / (K - 1);
-  const auto cuts = slice_mesh_parallel(muscle, ez, offsets);
-  const int q = slices_->samples / 4;
-  for (int k = 0; k < K; ++k) {
-    // The largest closed contour; other sizeable ones make the slice an issue.
-    int best = -1;
-    double best_area = 0.0;
-    std::vector<double> areas_k;
-    for (std::size_t c = 0; c < cuts[k].size(); ++c) {
-      if (!cuts[k][c].closed) continue;
-      const double A = compute_contour_area(cuts[k][c], ez);
-      areas_k.push_back(A);
-      if (A > best_area) {
-        best_area = A;
-        best = static_cast<int>(c);
+  if (field_slicing_) {
+    // Iso-contours of the Laplace potential: u on the surface vertices (the first tet vertices),
+    // at the levels splitting the volume (tets by their mean u) into equal parts.
+    Attachments surface_areas = areas;
+    surface_areas.insertion_interior = Points3(0, 3);  // the template ignores it
+    HarmonicOptions ho;
+    ho.tets = options.field_tets;
+    const HarmonicField field = calc_harmonic_field(muscle, surface_areas, ho);
+    const TetMesh& tm = field.tets;
+    std::vector<std::pair<double, double>> u_volume(static_cast<std::size_t>(tm.num_tets()));
+    double total = 0.0;
+    for (Eigen::Index t = 0; t < tm.num_tets(); ++t) {
+      const Vec3 p0 = tm.V.row(tm.T(t, 0)), p1 = tm.V.row(tm.T(t, 1)), p2 = tm.V.row(tm.T(t, 2)),
+                 p3 = tm.V.row(tm.T(t, 3));
+      const double vol = std::abs((p1 - p0).cross(p2 - p0).dot(p3 - p0)) / 6.0;
+      const double um = 0.25 * (field.u(tm.T(t, 0)) + field.u(tm.T(t, 1)) + field.u(tm.T(t, 2)) +
+                                field.u(tm.T(t, 3)));
+      u_volume[static_cast<std::size_t>(t)] = {um, vol};
+      total += vol;
+    }
+    std::sort(u_volume.begin(), u_volume.end());
+    const VecX u_surface = field.u.head(muscle.V.rows());
+    const double f0 = std::clamp(options.field_end_fraction, 0.0, 0.49);
+    std::vector<Points3> loops(K);
+    std::vector<Vec3> normal(K);
+    double cum = 0.0;
+    std::size_t it = 0;
+    for (int k = 0; k < K; ++k) {
+      const double target = (f0 + (1.0 - 2.0 * f0) * k / (K - 1)) * total;
+      while (it + 1 < u_volume.size() && cum + u_volume[it].second < target) cum += u_volume[it++].second;
+      const double level = std::clamp(u_volume[it].first, 1e-6, 1.0 - 1e-6);
+      std::vector<Points3> L = calc_iso_loops(muscle, u_surface, level);
+      if (L.empty())
+        throw_bad_input("an iso-contour of the attachment potential is missing",
+                        {.suggestion = "check the mesh is closed (run the mesh check/repair)"});
+      // The largest loop (by vector area); others are small folds of the surface.
+      int best = 0;
+      double best_area = -1.0;
+      for (std::size_t c = 0; c < L.size(); ++c)
+        if (const double A = calc_vector_area(L[c]).norm(); A > best_area) {
+          best_area = A;
+          best = static_cast<int>(c);
+        }
+      loops[k] = std::move(L[best]);
+      normal[k] = calc_vector_area(loops[k]).normalized();
+    }
+    // One orientation for all loops (by construction), turned so the normals point from the
+    // origin to the insertion; in-plane frames carried from the middle level (x from the box's x).
+    const int mid = K / 2;
+    if (normal[mid].dot(ez) < 0.0)
+      for (int k = 0; k < K; ++k) {
+        normal[k] = -normal[k];
+        loops[k] = loops[k].colwise().reverse().eval();
       }
+    std::vector<Vec3> fx(K);
+    const auto carry = [&](const Vec3& x, const Vec3& n) {
+      const Vec3 p = x - x.dot(n) * n;
+      return p.norm() > 1e-6 ? Vec3(p.normalized()) : Vec3(n.unitOrthogonal());
+    };
+    fx[mid] = carry(ex, normal[mid]);
+    for (int k = mid + 1; k < K; ++k) fx[k] = carry(fx[k - 1], normal[k]);
+    for (int k = mid - 1; k >= 0; --k) fx[k] = carry(fx[k + 1], normal[k]);
+    double length = 0.0;
+    Vec3 previous = Vec3::Zero();
+    for (int k = 0; k < K; ++k) {
+      const Vec3 centre = loops[k].colwise().mean().transpose();
+      const Vec3 fy = normal[k].cross(fx[k]);
+      ResampledContour r = resample_contour(loops[k], fx[k], fy, centre, slices_->samples);
+      mean_thickness_ += r.thickness / K;
+      mean_crossing_ += r.crossing / K;
+      slices_->contour.push_back(std::move(r.points));
+      slices_->contour_xy.push_back(std::move(r.xy));
+      if (k > 0) length += (centre - previous).norm();
+      previous = centre;
     }
-    if (best < 0)
-      throw_bad_input("a slice of the muscle between its attachment areas has no closed contour",
-                      {.suggestion = "check the mesh is closed (run the mesh check/repair)"});
-    const int sizeable = static_cast<int>(
-        std::count_if(areas_k.begin(), areas_k.end(), [&](double A) { return A > 0.05 * best_area; }));
-    if (sizeable > 1) {
-      SliceIssue issue;
-      issue.axial_position_m = offsets(k) - a;
-      issue.point = X_mesh_box_.translation() + issue.axial_position_m * ez;
-      issue.num_contours = sizeable;
-      issues_.push_back(issue);
-    }
-    const Points3& C = cuts[k][best].points;
-    const int n = static_cast<int>(C.rows());
-    // Contour in box coordinates, normalised by its bounding box.
-    Poly2 xy(n, 2);
-    xy.col(0) = C * ex;
-    xy.col(1) = C * ey;
-    const Eigen::RowVector2d lo = xy.colwise().minCoeff(), hi = xy.colwise().maxCoeff();
-    const Eigen::RowVector2d ext = (hi - lo).cwiseMax(1e-300);
-    // Corners: the extreme contour points in the four diagonal directions.
-    std::array<int, 4> corner{};
-    const std::array<Vec2, 4> dir{Vec2(-1, -1), Vec2(1, -1), Vec2(1, 1), Vec2(-1, 1)};
-    for (int j = 0; j < 4; ++j) {
-      double best_v = -1e300;
-      for (int i = 0; i < n; ++i) {
-        const Vec2 u = ((xy.row(i) - lo).cwiseQuotient(ext)).transpose();
-        const double v = dir[j].dot(u);
-        if (v > best_v) {
-          best_v = v;
-          corner[j] = i;
+    axial_length_ = length;
+  } else {
+    VecX offsets(K);
+    for (int k = 0; k < K; ++k) offsets(k) = a + (b - a) * k / (K - 1);
+    const auto cuts = slice_mesh_parallel(muscle, ez, offsets);
+    for (int k = 0; k < K; ++k) {
+      // The largest closed contour; other sizeable ones make the slice an issue.
+      int best = -1;
+      double best_area = 0.0;
+      std::vector<double> areas_k;
+      for (std::size_t c = 0; c < cuts[k].size(); ++c) {
+        if (!cuts[k][c].closed) continue;
+        const double A = compute_contour_area(cuts[k][c], ez);
+        areas_k.push_back(A);
+        if (A > best_area) {
+          best_area = A;
+          best = static_cast<int>(c);
         }
       }
-    }
-    const auto offset = [&](int j) { return (corner[j] - corner[0] + n) % n; };
-    const bool ordered = offset(1) > 0 && offset(2) > offset(1) && offset(3) > offset(2);
-    if (!ordered) {
-      // Fall back to equal arc-length quarters from the first corner.
-      std::vector<double> cum(n + 1, 0.0);
-      for (int i = 0; i < n; ++i)
-        cum[i + 1] = cum[i] + (C.row((corner[0] + i + 1) % n) - C.row((corner[0] + i) % n)).norm();
-      for (int j = 1; j < 4; ++j) {
-        const double target = cum[n] * j / 4.0;
-        const int i = static_cast<int>(std::lower_bound(cum.begin(), cum.end(), target) - cum.begin());
-        corner[j] = (corner[0] + std::clamp(i, j, n - 4 + j)) % n;
+      if (best < 0)
+        throw_bad_input("a slice of the muscle between its attachment areas has no closed contour",
+                        {.suggestion = "check the mesh is closed (run the mesh check/repair)"});
+      const int sizeable = static_cast<int>(
+          std::count_if(areas_k.begin(), areas_k.end(), [&](double A) { return A > 0.05 * best_area; }));
+      if (sizeable > 1) {
+        SliceIssue issue;
+        issue.axial_position_m = offsets(k) - a;
+        issue.point = X_mesh_box_.translation() + issue.axial_position_m * ez;
+        issue.num_contours = sizeable;
+        issues_.push_back(issue);
       }
+      const Points3& C = cuts[k][best].points;
+      ResampledContour r = resample_contour(C, ex, ey, X_mesh_box_.translation(), slices_->samples);
+      mean_thickness_ += r.thickness / K;
+      mean_crossing_ += r.crossing / K;
+      Points3 out = std::move(r.points);
+      Poly2 out_xy = std::move(r.xy);
+      slices_->contour.push_back(std::move(out));
+      slices_->contour_xy.push_back(std::move(out_xy));
     }
-    Points3 out(slices_->samples, 3);
-    for (int j = 0; j < 4; ++j) resample_piece(C, corner[j], corner[(j + 1) % 4], q, out, j * q);
-    Poly2 out_xy(out.rows(), 2);
-    const Points3 rel = out.rowwise() - X_mesh_box_.translation().transpose();
-    out_xy.col(0) = rel * ex;
-    out_xy.col(1) = rel * ey;
-    {
-      // Thickness along x: contour area / extent along y.
-      double area2 = 0.0;
-      for (Eigen::Index i = 0, j = out_xy.rows() - 1; i < out_xy.rows(); j = i++)
-        area2 += out_xy(j, 0) * out_xy(i, 1) - out_xy(i, 0) * out_xy(j, 1);
-      const double width = out_xy.col(1).maxCoeff() - out_xy.col(1).minCoeff();
-      if (width > 0.0) mean_thickness_ += 0.5 * std::abs(area2) / width / K;
-    }
-    {
-      // Crossing: the mapped square boundary points (0, y) and (1, y) are the contour points at
-      // perimeter parameters 3 + (1 - y) and 1 + y (counter-clockwise from (0,0), q per side).
-      const auto at = [&](double t) {
-        const double idx = t * q;
-        const int i0 = static_cast<int>(std::floor(idx)) % slices_->samples;
-        const int i1 = (i0 + 1) % slices_->samples;
-        const double w = idx - std::floor(idx);
-        return Vec3((1 - w) * out.row(i0) + w * out.row(i1));
-      };
-      double crossing = 0.0;
-      for (int j = 1; j <= 9; ++j) {
-        const double y = 0.1 * j;
-        crossing += (at(1.0 + y) - at(3.0 + (1.0 - y))).norm() / 9.0;
-      }
-      mean_crossing_ += crossing / K;
-    }
-    slices_->contour.push_back(std::move(out));
-    slices_->contour_xy.push_back(std::move(out_xy));
+  }
+  for (const Poly2& xy : slices_->contour_xy) {
+    double area2 = 0.0;
+    for (Eigen::Index i = 0, j = xy.rows() - 1; i < xy.rows(); j = i++)
+      area2 += xy(j, 0) * xy(i, 1) - xy(i, 0) * xy(j, 1);
+    mean_section_area_ += 0.5 * std::abs(area2) / K;
   }
   {
     // Mean mapped area of the start square's cells (two triangles per cell), over the slices.
@@ -374,6 +579,72 @@ Points3 select_area_targets(const TriMesh& muscle, const AttachmentArea& area, i
   return out;
 }
 
+// Re-routing onto a side area (an area along the belly; TemplateMapOptions::side_reroute): a
+// fibre leaves its mapped path for its target at the point j of its end half that minimises
+// turn_j + |P_j - T| / spacing, turn_j the angle between the segment from the target T to P_j
+// and the fibre's own direction there (one radian of turn weighs as much as one fibre spacing
+// of segment), among the points turning at most max_turn; targets are matched to fibres greedily, globally, by that least cost, and the
+// points before P_j are replaced by the segment. So the fibres start along the whole area and
+// leave the side at a shallow angle, instead of turning back to it from the end of the box.
+struct SideCut {
+  double cost = std::numeric_limits<double>::infinity();
+  Eigen::Index point = 1;
+};
+
+SideCut find_side_cut(const Points3& P, const Vec3& T, bool at_origin, double spacing,
+                      double max_turn) {
+  const Eigen::Index m = P.rows();
+  SideCut best;
+  for (Eigen::Index j = 1; j <= m / 2 && j + 1 < m; ++j) {
+    const Eigen::Index a = at_origin ? j : m - 1 - j, b = at_origin ? j + 1 : m - 2 - j;
+    const Vec3 d = Vec3(P.row(a)) - T, tangent = P.row(b) - P.row(a);
+    const double turn = d.norm() > 0.0 && tangent.norm() > 0.0
+                            ? std::acos(std::clamp(d.normalized().dot(tangent.normalized()), -1.0, 1.0))
+                            : 0.0;
+    // A point that would turn more than max_turn is taken only when no other is left (10 rad:
+    // more than any turn).
+    const double cost = turn + d.norm() / spacing + (turn > max_turn ? 10.0 : 0.0);
+    if (cost < best.cost) best = {cost, j};
+  }
+  return best;
+}
+
+void reroute_to_side_area(std::vector<Points3>& fibres, const Points3& targets, bool at_origin,
+                          double spacing, double max_turn) {
+  const int count = static_cast<int>(fibres.size());
+  const int nt = static_cast<int>(targets.rows());
+  std::vector<std::pair<double, std::int64_t>> pairs;
+  pairs.reserve(static_cast<std::size_t>(count) * nt);
+  for (int f = 0; f < count; ++f)
+    for (int t = 0; t < nt; ++t)
+      pairs.emplace_back(find_side_cut(fibres[f], targets.row(t), at_origin, spacing, max_turn).cost,
+                         static_cast<std::int64_t>(f) * nt + t);
+  std::sort(pairs.begin(), pairs.end());
+  std::vector<int> target_of(count, -1);
+  std::vector<char> used(nt, 0);
+  int assigned = 0;
+  for (const auto& [cost, ft] : pairs) {
+    const int f = static_cast<int>(ft / nt), t = static_cast<int>(ft % nt);
+    if (target_of[f] >= 0 || used[t]) continue;
+    target_of[f] = t;
+    used[t] = 1;
+    if (++assigned == std::min(count, nt)) break;
+  }
+  for (int f = 0; f < count; ++f) {
+    if (target_of[f] < 0) continue;
+    Points3& P = fibres[f];
+    const Eigen::Index m = P.rows();
+    const auto idx = [&](Eigen::Index j) { return at_origin ? j : m - 1 - j; };
+    const Vec3 T = targets.row(target_of[f]);
+    const Eigen::Index cut = find_side_cut(P, T, at_origin, spacing, max_turn).point;
+    const Vec3 pk = P.row(idx(cut));
+    for (Eigen::Index j = 0; j < cut; ++j) {
+      const double w = static_cast<double>(j) / cut;  // 0 at the target, -> 1 at the cut
+      P.row(idx(j)) = ((1 - w) * T + w * pk).transpose();
+    }
+  }
+}
+
 }  // namespace
 
 FibreSet TemplateMapper::calc_fibres(const FibreSet& unit_fibres, bool reroute_ends) const {
@@ -424,20 +695,36 @@ FibreSet TemplateMapper::calc_fibres(const FibreSet& unit_fibres, bool reroute_e
     const int count = static_cast<int>(out.fibres.size());
     const auto reroute = [&](bool at_origin) {
       const AttachmentArea& area = at_origin ? areas_.origin : areas_.insertion;
-      const Points3 targets = select_area_targets(muscle_, area, count, options_.target_factor);
+      const bool side = side_areas_ && !field_slicing_ && options_.side_reroute;
+      const Points3 targets = select_area_targets(
+          muscle_, area, count, side ? std::max(options_.target_factor, options_.side_target_factor)
+                                     : options_.target_factor);
+      if (side) {
+        // Fibre spacing: sqrt(mean slice area / count).
+        reroute_to_side_area(out.fibres, targets, at_origin, std::sqrt(mean_section_area_ / count),
+                             options_.side_max_turn_rad);
+        return;
+      }
       std::vector<Vec3> guess(count);
       std::vector<Eigen::Index> cut(count);
       for (int f = 0; f < count; ++f) {
         const Points3& P = out.fibres[f];
         const Eigen::Index m = P.rows();
-        const Eigen::Index c = std::clamp<Eigen::Index>(
-            static_cast<Eigen::Index>(std::lround(options_.reroute_fraction * (m - 1))), 1, m / 2 - 0);
+        // Field slices end on the areas: only the end point moves to its target.
+        const Eigen::Index c =
+            field_slicing_ ? 1
+                           : std::clamp<Eigen::Index>(
+                                 static_cast<Eigen::Index>(std::lround(options_.reroute_fraction * (m - 1))),
+                                 1, m / 2 - 0);
         const Eigen::Index keep = at_origin ? c : m - 1 - c;
         const Eigen::Index inner = at_origin ? keep + 1 : keep - 1;
         const Vec3 pk = P.row(keep), pi = P.row(std::clamp<Eigen::Index>(inner, 0, m - 1));
         const Vec3 end = P.row(at_origin ? 0 : m - 1);
         const Vec3 dir = (pk - pi).norm() > 0 ? Vec3((pk - pi).normalized()) : Vec3::Zero();
-        guess[f] = pk + dir * (end - pk).norm();
+        // Field slices: the mapped end already lies at its attachment area (the first and last
+        // slices wrap the areas), so it is matched as it is; plane slices end at the centroid
+        // levels, and the end is extrapolated along the fibre.
+        guess[f] = field_slicing_ ? end : Vec3(pk + dir * (end - pk).norm());
         cut[f] = keep;
       }
       // Greedy global matching by distance.
@@ -485,13 +772,13 @@ FibreSet TemplateMapper::calc_fibres(const FibreSet& unit_fibres, bool reroute_e
   const double spacing = axial_length_ / std::max(K - 1, 1);
   const double clear_enough = 0.1 * spacing;
   for (Points3& P : out.fibres) {
-    smooth(P, options_.smoothing_iterations);
+    smooth(P, field_slicing_ ? options_.field_smoothing_iterations : options_.smoothing_iterations);
     P = resample_polyline(P, static_cast<int>(P.rows()));
     for (Eigen::Index k = 0; k < P.rows(); ++k) {
       const Vec3 p = P.row(k);
       const Vec3 p_box = R.transpose() * (p - o);
       const double kappa = p_box.z() / axial_length_ * (K - 1);
-      if (kappa > 0.0 && kappa < K - 1) {
+      if (!field_slicing_ && kappa > 0.0 && kappa < K - 1) {
         const int k0 = std::min(static_cast<int>(kappa), K - 2);
         const Vec2 xy = p_box.head<2>();
         if (calc_clearance(S.contour_xy[k0], xy) > clear_enough &&

@@ -8,6 +8,7 @@
 
 #include "fascicle/fibres/attachment.hpp"
 #include "fascicle/fibres/fibre_set.hpp"
+#include "fascicle/fibres/tet_mesh.hpp"
 
 #include <memory>
 #include <vector>
@@ -34,6 +35,32 @@ struct TemplateMapOptions {
   // towards this direction (e.g. the deep side of the medial gastrocnemius). Zero: the sign given
   // by the eigenvector or by thickness_direction.
   Vec3 insertion_side_towards = Vec3::Zero();
+  // How the muscle is sliced (docs/fibres.md, "Field slicing"). planes: K planes normal to the
+  // box axis between the attachment centroids' levels. field: K iso-contours (on the surface) of
+  // the Laplace potential u (0 on the origin area, 1 on the insertion area; tets `field_tets`) at
+  // the levels that split the volume into equal parts, from `field_end_fraction` of it to 1 minus
+  // that, so the first and last slices wrap the attachment areas wherever they lie on the belly;
+  // mapped ends are only snapped to their area targets (no re-routed segment) and the fibres get
+  // `field_smoothing_iterations` passes. automatic: field when an attachment area lies along the
+  // side of the belly (its extent along the box axis exceeds `side_area_extent` of the muscle's)
+  // and the two areas are apart along the axis (gap > `min_area_gap` of the extent: the level
+  // sets of areas that abut all meet at their common border, so the slices would be hinged
+  // there), else planes.
+  enum class Slicing { automatic, planes, field };
+  Slicing slicing = Slicing::automatic;
+  double side_area_extent = 0.15;
+  double min_area_gap = 0.1;
+  double field_end_fraction = 0.0;
+  // Planes with a side area (and the areas abutting, so no field slicing): the slices run from
+  // the origin area's far end to the insertion area's far end, and fibre ends are re-routed
+  // onto the areas from the point of the fibre where that turns least for the length of the
+  // new segment (docs/fibres.md), with
+  // targets chosen as with target_factor = max(target_factor, side_target_factor).
+  bool side_reroute = true;
+  int side_target_factor = 2;
+  double side_max_turn_rad = 1.0471975511965976;  // 60 degrees
+  int field_smoothing_iterations = 2;
+  TetOptions field_tets{.max_volume = 0.0, .volume_scale = 2.0, .max_radius_edge_ratio = 0.0};
 };
 
 // A slice whose plane cuts the muscle into more than one closed contour: the template cannot be
@@ -67,6 +94,8 @@ class TemplateMapper {
   double get_mean_crossing() const { return mean_crossing_; }
   const std::vector<SliceIssue>& get_issues() const { return issues_; }
   bool is_mappable() const { return issues_.empty(); }
+  // True when the slices are iso-contours of the Laplace potential (TemplateMapOptions::slicing).
+  bool uses_field_slicing() const { return field_slicing_; }
 
   // `count` start parameters r in [0, 1]^2 for the parallel template (make_template_fibres with
   // starts; the fibre sits at 0.02 + 0.96 r in the unit square), spread in proportion to the
@@ -92,6 +121,9 @@ class TemplateMapper {
   double axial_length_ = 0.0;
   double mean_thickness_ = 0.0;
   double mean_crossing_ = 0.0;
+  double mean_section_area_ = 0.0;  // mean slice contour area (m^2)
+  bool field_slicing_ = false;
+  bool side_areas_ = false;  // an attachment area lies along the side of the belly
   std::vector<SliceIssue> issues_;
   std::unique_ptr<Slices> slices_;
   std::unique_ptr<MeshQuery> query_;
