@@ -338,6 +338,96 @@ TEST(MeshQueryCompact, PointsJustAboveAVertexFindTheirTriangle) {
   }
 }
 
+// Batches as the contact and fibre code issues them, where consecutive Morton-ordered points are
+// near each other (the batched path seeds each query from the previous one): a dense patch of
+// near-surface points, exact duplicates, points along a line through the bone, a far point; batch
+// sizes 1, 257 (a full block of 256 and one more) and the odd total. Every answer equals the
+// exhaustive search (triangle with the lowest-index tie rule, barycentrics bit for bit) and the
+// single query (point and distance bit for bit).
+TEST(MeshQueryCompact, CoherentBatchesOnTheTibiaAgainstBruteForce) {
+  const TriMesh& m = tibia();
+  const MeshQuery query(m);
+  std::mt19937_64 rng(31);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const Vec3 lo = m.V.colwise().minCoeff().transpose(), hi = m.V.colwise().maxCoeff().transpose();
+  std::vector<Vec3> points;
+  // A patch of 3 x 3 mm around a surface point, 0.5 ... 5 mm off along the face normal, both sides.
+  const Eigen::Index f0 = m.F.rows() / 3;
+  const Vec3 a = vertex(m, f0, 0), b = vertex(m, f0, 1), c = vertex(m, f0, 2);
+  const Vec3 n = (b - a).cross(c - a).normalized();
+  const Vec3 t1 = (b - a).normalized(), t2 = n.cross(t1);
+  const Vec3 centre = (a + b + c) / 3.0;
+  for (int i = 0; i < 60; ++i) {
+    const double off = (i % 2 == 0 ? 1.0 : -1.0) * (0.5e-3 + 4.5e-3 * u(rng));
+    points.push_back(centre + 3e-3 * (u(rng) - 0.5) * t1 + 3e-3 * (u(rng) - 0.5) * t2 + off * n);
+  }
+  // Exact duplicates (a degenerate group: zero extent).
+  for (int i = 0; i < 20; ++i) points.push_back(points[static_cast<std::size_t>(i % 3)]);
+  // Points on a line across the bone's middle (collinear: a flat group box), and on the surface.
+  const Vec3 mid = 0.5 * (lo + hi);
+  for (int i = 0; i < 40; ++i) {
+    const double s = static_cast<double>(i) / 39.0;
+    points.push_back(Vec3(lo.x() - 0.01 + s * (hi.x() - lo.x() + 0.02), mid.y(), mid.z()));
+  }
+  for (int i = 0; i < 10; ++i) points.push_back(vertex(m, f0 + 7 * i, i % 3));
+  points.push_back(mid + Vec3(0.3, -0.2, 0.1));  // far away
+  std::vector<ClosestPoint> expected;
+  for (const Vec3& p : points) expected.push_back(brute_closest(m, p));
+  const auto check = [&](const std::vector<std::size_t>& rows) {
+    Points3 P(static_cast<Eigen::Index>(rows.size()), 3);
+    for (std::size_t r = 0; r < rows.size(); ++r) P.row(static_cast<Eigen::Index>(r)) = points[rows[r]].transpose();
+    const std::vector<ClosestPoint> batch = query.calc_closest_points(P);
+    const VecX distances = query.calc_distances(P);
+    ASSERT_EQ(batch.size(), rows.size());
+    for (std::size_t r = 0; r < rows.size(); ++r) {
+      const ClosestPoint& e = expected[rows[r]];
+      const ClosestPoint one = query.calc_closest_point(points[rows[r]]);
+      ASSERT_EQ(batch[r].triangle, e.triangle) << "row " << r << " of " << rows.size();
+      ASSERT_EQ(batch[r].barycentric, e.barycentric) << "row " << r;
+      ASSERT_NEAR(batch[r].distance, e.distance, 1e-12 * e.distance + 1e-300) << "row " << r;
+      ASSERT_EQ(batch[r].point, one.point) << "row " << r;
+      ASSERT_EQ(batch[r].distance, one.distance) << "row " << r;
+      ASSERT_EQ(distances[static_cast<Eigen::Index>(r)], one.distance) << "row " << r;
+    }
+  };
+  std::vector<std::size_t> all(points.size());
+  for (std::size_t i = 0; i < all.size(); ++i) all[i] = i;
+  ASSERT_EQ(all.size() % 256 == 0, false);
+  check(all);
+  std::vector<std::size_t> block;  // 257 rows: the points twice over, shuffled
+  for (std::size_t i = 0; i < 257; ++i) block.push_back((i * 7919) % points.size());
+  check(block);
+  for (std::size_t i = 0; i < points.size(); i += 13) check({i});  // one-point batches
+}
+
+// A point equidistant from two triangles (above their shared edge) gets the lower index, in single
+// and batched queries, whichever order the triangles are listed in.
+TEST(MeshQueryCompact, TiesGoToTheLowestTriangleIndex) {
+  for (const bool swapped : {false, true}) {
+    TriMesh m;
+    m.V.resize(4, 3);
+    m.V << 0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0;
+    m.F.resize(2, 3);
+    if (swapped) {
+      m.F << 0, 2, 3, 0, 1, 2;
+    } else {
+      m.F << 0, 1, 2, 0, 2, 3;
+    }
+    const MeshQuery query(m);
+    Points3 P(5, 3);
+    P << 0.5, 0.5, 0.3, 0.25, 0.25, -0.2, 0.5, 0.5, 0.3, 0.0, 0.0, 1.0, 1.0, 1.0, 0.0;
+    const std::vector<ClosestPoint> batch = query.calc_closest_points(P);
+    for (Eigen::Index i = 0; i < P.rows(); ++i) {
+      const Vec3 p = P.row(i).transpose();
+      const ClosestPoint bf = brute_closest(m, p);
+      EXPECT_EQ(bf.triangle, 0);  // every point lies on the shared diagonal's vertical plane
+      EXPECT_EQ(query.calc_closest_point(p).triangle, 0) << "point " << i << " swapped " << swapped;
+      EXPECT_EQ(batch[static_cast<std::size_t>(i)].triangle, 0) << "point " << i << " swapped " << swapped;
+      EXPECT_EQ(batch[static_cast<std::size_t>(i)].barycentric, bf.barycentric) << "point " << i;
+    }
+  }
+}
+
 TEST(MeshQueryCompact, DefaultIsTheCompactTree) {
   EXPECT_EQ(MeshQueryOptions{}.closest_point_tree, MeshQueryOptions::ClosestPointTree::compact);
 }
