@@ -12,6 +12,7 @@
 #include <cholmod.h>
 
 #include <algorithm>
+#include <unordered_map>
 #include <cmath>
 #include <fmt/format.h>
 #include <array>
@@ -301,7 +302,7 @@ struct SurfaceSeparation {
   std::vector<std::array<int, 3>> candidates;
   bool valid = false;
   std::vector<SurfaceContact> contacts;
-  std::unordered_set<long long> keys;
+  std::unordered_map<long long, int> keys;  // (a, b, v) -> index into contacts
   std::vector<std::vector<PushKernel>> kernels;  // per muscle, per display vertex
   int builds = 0;
 };
@@ -586,7 +587,11 @@ Vec3 calc_surface_vertex(const FibreBundle& m, int v, const Points3& x) {
 }
 
 // Signed gap of p from a closed, outward surface (positive outside): the closest point, and the
-// side of its face (MeshQuery's ray vote on an edge or a vertex), the bones' rule.
+// side of its face (MeshQuery's ray vote on an edge or a vertex), the bones' rule. (The sign of
+// the closest feature's angle-weighted pseudonormal, Baerentzen and Aanaes 2005, was tried in
+// place of the ray vote with surface particles: on the VH shank the solve then broke down at
+// frame 61, a vertex 24 mm inside another surface, and the volume hold failed at frame 65; not
+// investigated further, the deformed lofts may fold.)
 double calc_signed_gap(const MeshQuery& surface, const Vec3& p, ClosestPoint& cp) {
   cp = surface.calc_closest_point(p);
   if (cp.triangle < 0) return std::numeric_limits<double>::infinity();
@@ -748,7 +753,13 @@ int detect_surface_contacts(const FibresFirstModel& model,
     }
     if (!add || !(gap[i] < get_min_gap(ss, model.options, nm, a, v, b))) continue;
     const long long key = (static_cast<long long>(a) * nm + b) * (1LL << 31) + v;
-    if (!ss.keys.insert(key).second) continue;
+    const auto [it, fresh] = ss.keys.emplace(key, static_cast<int>(ss.contacts.size()));
+    if (!fresh) {
+      // a known contact: it pushes against the current closest face (the surfaces slide)
+      ss.contacts[it->second].triangle = cps[i].triangle;
+      ss.contacts[it->second].barycentric = cps[i].barycentric;
+      continue;
+    }
     ss.contacts.push_back({a, v, b, cps[i].triangle, cps[i].barycentric,
                            get_min_gap(ss, model.options, nm, a, v, b)});
     ++added;
