@@ -251,6 +251,13 @@ struct TemplateMapper::Slices {
   // farthest-point order (a prefix of that order is the farthest-point selection of any size).
   std::vector<Vec2> candidate_r;
   std::vector<Vec2> farthest_first;
+  // Field slicing: signed distances to the surface at the centres of a grid over the bounding
+  // box (cell `cell`, dims n), for the inside pass: a point of a cell whose centre is deeper
+  // than the cell's half diagonal (plus the margin) is inside (the distance is 1-Lipschitz).
+  Vec3 grid_lo = Vec3::Zero();
+  double cell = 0.0;
+  Eigen::Vector3i n = Eigen::Vector3i::Zero();
+  VecX grid_distance;
 };
 
 TemplateMapper::~TemplateMapper() = default;
@@ -504,6 +511,22 @@ TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
     }
   }
   query_ = std::make_unique<MeshQuery>(muscle);
+  if (field_slicing_) {
+    // About 32k cells over the bounding box.
+    Slices& S = *slices_;
+    const Vec3 lo = muscle.V.colwise().minCoeff(), hi = muscle.V.colwise().maxCoeff();
+    const Vec3 ext = (hi - lo).cwiseMax(1e-9);
+    S.cell = std::cbrt(ext.prod() / 32768.0);
+    S.n = (ext / S.cell).array().ceil().cast<int>().max(1).matrix();
+    S.grid_lo = lo;
+    Points3 centres(static_cast<Eigen::Index>(S.n.prod()), 3);
+    for (int i = 0; i < S.n.x(); ++i)
+      for (int j = 0; j < S.n.y(); ++j)
+        for (int k = 0; k < S.n.z(); ++k)
+          centres.row((static_cast<Eigen::Index>(i) * S.n.y() + j) * S.n.z() + k) =
+              (lo + S.cell * Vec3(i + 0.5, j + 0.5, k + 0.5)).transpose();
+    S.grid_distance = query_->calc_signed_distances(centres);
+  }
 }
 
 std::vector<Vec2> TemplateMapper::calc_section_samples(int count) const {
@@ -594,17 +617,26 @@ struct SideCut {
 SideCut find_side_cut(const Points3& P, const Vec3& T, bool at_origin, double spacing,
                       double max_turn) {
   const Eigen::Index m = P.rows();
+  // Candidates in order of their segment length (the cost is at least length / spacing, so the
+  // search stops at the first one that cannot win; ties go to the point nearest the end).
+  std::array<std::pair<double, Eigen::Index>, 64> order;
+  int n = 0;
+  for (Eigen::Index j = 1; j <= m / 2 && j + 1 < m && n < 64; ++j)
+    order[n++] = {(Vec3(P.row(at_origin ? j : m - 1 - j)) - T).norm() / spacing, j};
+  std::sort(order.begin(), order.begin() + n);
   SideCut best;
-  for (Eigen::Index j = 1; j <= m / 2 && j + 1 < m; ++j) {
+  for (int i = 0; i < n; ++i) {
+    const auto [reach, j] = order[i];
+    if (reach > best.cost) break;
     const Eigen::Index a = at_origin ? j : m - 1 - j, b = at_origin ? j + 1 : m - 2 - j;
     const Vec3 d = Vec3(P.row(a)) - T, tangent = P.row(b) - P.row(a);
-    const double turn = d.norm() > 0.0 && tangent.norm() > 0.0
+    const double turn = reach > 0.0 && tangent.norm() > 0.0
                             ? std::acos(std::clamp(d.normalized().dot(tangent.normalized()), -1.0, 1.0))
                             : 0.0;
     // A point that would turn more than max_turn is taken only when no other is left (10 rad:
     // more than any turn).
-    const double cost = turn + d.norm() / spacing + (turn > max_turn ? 10.0 : 0.0);
-    if (cost < best.cost) best = {cost, j};
+    const double cost = turn + reach + (turn > max_turn ? 10.0 : 0.0);
+    if (cost < best.cost || (cost == best.cost && j < best.point)) best = {cost, j};
   }
   return best;
 }
@@ -778,14 +810,24 @@ FibreSet TemplateMapper::calc_fibres(const FibreSet& unit_fibres, bool reroute_e
       const Vec3 p = P.row(k);
       const Vec3 p_box = R.transpose() * (p - o);
       const double kappa = p_box.z() / axial_length_ * (K - 1);
-      if (!field_slicing_ && kappa > 0.0 && kappa < K - 1) {
+      if (field_slicing_) {
+        const Eigen::Vector3i c = ((p - S.grid_lo) / S.cell).array().floor().cast<int>().matrix();
+        if ((c.array() >= 0).all() && (c.array() < S.n.array()).all() &&
+            S.grid_distance((static_cast<Eigen::Index>(c.x()) * S.n.y() + c.y()) * S.n.z() + c.z()) <
+                -(0.8660254037844386 * S.cell + inside_margin))  // sqrt(3) / 2
+          continue;
+      } else if (kappa > 0.0 && kappa < K - 1) {
         const int k0 = std::min(static_cast<int>(kappa), K - 2);
         const Vec2 xy = p_box.head<2>();
         if (calc_clearance(S.contour_xy[k0], xy) > clear_enough &&
             calc_clearance(S.contour_xy[k0 + 1], xy) > clear_enough)
           continue;
       }
-      ClosestPoint c = query_->calc_closest_point(p, 2.0 * spacing);
+      // The search radius only bounds the work (a point farther from the surface is tested
+      // for inside instead). Field slices have no 2-D shortcut, so every point comes here and
+      // most are deep inside: a short radius (1 mm) settles them by the inside test.
+      ClosestPoint c = query_->calc_closest_point(p, field_slicing_ ? std::min(2.0 * spacing, 1e-3)
+                                                                    : 2.0 * spacing);
       if (c.triangle < 0) {
         // Far from the surface: deep inside, or far outside a strongly concave contour.
         if (query_->calc_is_inside(p)) continue;
