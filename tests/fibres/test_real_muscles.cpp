@@ -99,11 +99,11 @@ double find_floor(const std::string& name, FibreMethod method, const std::string
   // area candidates (session 7). The VH TA's harmonic coverage meets the target (0.952) with
   // little margin; it stays listed with a floor of 0.93 so that a last-digit difference in
   // another build cannot flip the test. Session 8: the soleus' template coverage (0.858 -> 0.968,
-  // field slicing) and the VH TA's template origin spread (0.751 -> 0.845) and smoothness (0.54 ->
-  // 0.97, side re-routing) meet their targets; the VH TA's template coverage rose 0.765 -> 0.875
-  // (floor raised from 0.74 to 0.85).
+  // field slicing) and the VH TA's template origin spread (0.751 -> 0.861) and smoothness (0.54 ->
+  // 0.97, side re-routing) meet their targets; the VH TA's template coverage rose 0.765 -> 0.918
+  // (floor raised from 0.74 to 0.89).
   static const Shortfall known[] = {
-      {"tibialis_anterior", T, "coverage", 0.85},
+      {"tibialis_anterior", T, "coverage", 0.89},
       {"tibialis_anterior", H, "coverage", 0.93},
   };
   for (const Shortfall& k : known)

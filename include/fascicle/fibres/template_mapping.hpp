@@ -57,7 +57,7 @@ struct TemplateMapOptions {
   // new segment (docs/fibres.md), with
   // targets chosen as with target_factor = max(target_factor, side_target_factor).
   bool side_reroute = true;
-  int side_target_factor = 2;
+  int side_target_factor = 8;
   double side_max_turn_rad = 1.0471975511965976;  // 60 degrees
   int field_smoothing_iterations = 2;
   TetOptions field_tets{.max_volume = 0.0, .volume_scale = 2.0, .max_radius_edge_ratio = 0.0};
