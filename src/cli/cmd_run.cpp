@@ -29,6 +29,7 @@ struct RunArgs {
   std::string representation;
   double activation = -1.0;
   double specific_tension = 25.0;  // N/cm²
+  bool no_pack_bellies = false;
   double fps = 0.0;
   int frames = 0;
 };
@@ -40,8 +41,9 @@ void run(const RunArgs& args) {
   const Registry registry = make_cli_registry();
   SceneSpec spec;
   if (!args.scene.empty()) {
-    if (!args.muscles.empty() || args.specific_tension != 25.0)
-      throw_usage("--muscles and --specific-tension apply to --model runs");
+    if (!args.muscles.empty() || args.specific_tension != 25.0 || args.no_pack_bellies)
+      throw_usage("--muscles, --specific-tension and --no-pack-bellies apply to --model runs",
+                  {.suggestion = "in a scene file, set them under \"opensim_model\""});
     spec = load_scene(args.scene, registry);
   } else {
     if (args.motion.empty())
@@ -50,6 +52,7 @@ void run(const RunArgs& args) {
     options.muscles = args.muscles;
     options.activation = args.activation;
     options.belly.specific_tension_Pa = args.specific_tension * 1e4;
+    options.belly.packing.enabled = !args.no_pack_bellies;
     if (!args.representation.empty()) options.representation = args.representation;
     // Mesh search: OpenSim's order, then --geometry folders, then ../Geometry beside the model's
     // folder (the layout of OpenSim's model distributions).
@@ -122,6 +125,8 @@ void add_run_commands(CLI::App& app, Invocation& run_action) {
                   "Muscle representation for every muscle (surface_first, blended_surface, action_line, ...)");
   cmd->add_option("--specific-tension", args->specific_tension,
                   "σ in N/cm² for generated volumes, V = F0/σ · l0")->check(CLI::PositiveNumber)->capture_default_str();
+  cmd->add_flag("--no-pack-bellies", args->no_pack_bellies,
+                "Leave the generated bellies as placed (overlapping); default: packed at the default pose");
   cmd->add_option("--outputs", args->outputs,
                   "Writers (comma-separated): paraview, sto, csv, summary, sketch, report; default: the scene's or all but sketch")
       ->delimiter(',');

@@ -56,72 +56,25 @@ BellySpan calc_belly_span(double path_length_m, double volume_m3, const MusclePa
   return {start, start + belly};
 }
 
-GeneratedBelly make_fusiform_belly(const Points3& centreline, double volume_m3, const GeneratedBellyOptions& o,
-                                   double pennation_rad) {
-  if (!(volume_m3 > 0.0) || !std::isfinite(volume_m3))
-    throw_bad_input("a generated muscle belly needs a positive, finite volume");
-  if (o.segments < 3 || o.rings < 1) throw_usage("a generated belly needs >= 3 segments and >= 1 ring");
-  const int n = o.rings, s = o.segments;
-  const FramedLine line = calc_framed_line(centreline, n + 2, calc_default_start_frame(centreline));
-  // Unit-radius offsets d and centres c: vertex = c + R d. Vertex 0 and the last are the tips.
-  const int nv = n * s + 2;
-  Points3 C(nv, 3), D = Points3::Zero(nv, 3);
-  C.row(0) = line.points.row(0);
-  C.row(nv - 1) = line.points.row(n + 1);
-  for (int k = 1; k <= n; ++k) {
-    const double u = static_cast<double>(k) / (n + 1);
-    const double r = std::sqrt(std::sin(M_PI * u));
-    const Mat3 R = line.frames[k].toRotationMatrix();
-    for (int j = 0; j < s; ++j) {
-      const double phi = 2.0 * M_PI * j / s;
-      const int v = 1 + (k - 1) * s + j;
-      C.row(v) = line.points.row(k);
-      D.row(v) = (r * (std::cos(phi) * R.col(1) + std::sin(phi) * R.col(2))).transpose();
-    }
-  }
-  TriMesh mesh;
-  mesh.F.resize(2 * s * n, 3);
-  int f = 0;
-  for (int j = 0; j < s; ++j) {
-    const int j1 = (j + 1) % s;
-    mesh.F.row(f++) << 0, 1 + j1, 1 + j;
-    mesh.F.row(f++) << nv - 1, 1 + (n - 1) * s + j, 1 + (n - 1) * s + j1;
-    for (int k = 1; k < n; ++k) {
-      const int a = 1 + (k - 1) * s, b = 1 + k * s;
-      mesh.F.row(f++) << a + j, a + j1, b + j1;
-      mesh.F.row(f++) << a + j, b + j1, b + j;
-    }
-  }
-  const Vec3 centre = C.colwise().mean().transpose();
-  const auto volume_at = [&](double R) { return calc_enclosed_volume((C + R * D).eval(), mesh.F, centre); };
-  // Orientation: frames are right-handed (x tangent), so the fan above winds outward; check anyway.
-  if (volume_at(1.0) < 0.0) mesh.F.col(1).swap(mesh.F.col(2));
-  // V(R) is a cubic in R (a quadratic for a straight line): Newton from the straight-line value.
-  double R = std::sqrt(volume_m3 / volume_at(1.0));
-  for (int it = 0; it < 30; ++it) {
-    const double v = volume_at(R);
-    if (std::abs(v - volume_m3) <= 1e-12 * volume_m3) break;
-    const double h = 1e-6 * R;
-    const double dv = (volume_at(R + h) - volume_at(R - h)) / (2.0 * h);
-    if (!(dv > 0.0)) throw_numerical("generated belly: the volume does not grow with the radius (line too curved)");
-    R -= (v - volume_m3) / dv;
-  }
-  if (!(R > 0.0) || std::abs(volume_at(R) - volume_m3) > 1e-9 * volume_m3)
-    throw_numerical("generated belly: could not reach the requested volume");
-  mesh.V = C + R * D;
-  GeneratedBelly belly;
-  belly.mesh = std::move(mesh);
+namespace {
+
+// The fibres of a circular (unpacked) belly: the profile R √sin(πu) of the shape rule.
+std::vector<Points3> calc_circular_fibres(const BellyShape& b) {
+  const int n = b.rings;
+  const double R = b.R;
+  const FramedLine& line = b.line;
+  std::vector<Points3> fibres;
   // Fibres: sunflower pattern in the unit disc (golden angle), scaled by the local radius.
   const double golden = M_PI * (3.0 - std::sqrt(5.0));
   const double length = line.length_m;
   const auto radius_at = [&](double u) { return R * std::sqrt(std::max(0.0, std::sin(M_PI * std::clamp(u, 0.0, 1.0)))); };
-  if (pennation_rad > 5.0 * M_PI / 180.0) {
+  if (b.pennation_rad > 5.0 * M_PI / 180.0) {
     // Pennate: from the axis at u0 (spread over the middle of the belly) towards the origin tip
     // at angle α, in the half-plane of angle φ, until the distance from the axis reaches the
     // local radius (found by bisection in the fibre parameter).
-    const double ca = std::cos(pennation_rad), sa = std::sin(pennation_rad);
-    for (int i = 0; i < o.fibres; ++i) {
-      const double u0 = 0.2 + 0.75 * (i + 0.5) / o.fibres;
+    const double ca = std::cos(b.pennation_rad), sa = std::sin(b.pennation_rad);
+    for (int i = 0; i < b.fibres; ++i) {
+      const double u0 = 0.2 + 0.75 * (i + 0.5) / b.fibres;
       const double phi = i * golden;
       // 95 % of the profile radius: the polygonal sections lie inside the smooth profile.
       const auto gap = [&](double tau) { return tau * sa - 0.95 * radius_at(u0 - tau * ca / length); };
@@ -135,12 +88,12 @@ GeneratedBelly make_fusiform_belly(const Points3& centreline, double volume_m3, 
         const Mat3 F = lp.frame.toRotationMatrix();
         fibre.row(k) = (lp.point + tau * sa * (std::cos(phi) * F.col(1) + std::sin(phi) * F.col(2))).transpose();
       }
-      belly.fibres.push_back(std::move(fibre));
+      fibres.push_back(std::move(fibre));
     }
-    return belly;
+    return fibres;
   }
-  for (int i = 0; i < o.fibres; ++i) {
-    const double rho = 0.9 * std::sqrt((i + 0.5) / o.fibres);
+  for (int i = 0; i < b.fibres; ++i) {
+    const double rho = 0.9 * std::sqrt((i + 0.5) / b.fibres);
     const double phi = i * golden;
     Points3 fibre(n + 2, 3);
     for (int k = 0; k < n + 2; ++k) {
@@ -149,12 +102,24 @@ GeneratedBelly make_fusiform_belly(const Points3& centreline, double volume_m3, 
       const Mat3 F = line.frames[k].toRotationMatrix();
       fibre.row(k) = line.points.row(k) + (r * (std::cos(phi) * F.col(1) + std::sin(phi) * F.col(2))).transpose();
     }
-    belly.fibres.push_back(std::move(fibre));
+    fibres.push_back(std::move(fibre));
   }
+  return fibres;
+}
+
+}  // namespace
+
+GeneratedBelly make_fusiform_belly(const Points3& centreline, double volume_m3, const GeneratedBellyOptions& o,
+                                   double pennation_rad) {
+  const BellyShape shape = make_belly_shape(centreline, volume_m3, o.rings, o.segments, o.fibres, pennation_rad);
+  GeneratedBelly belly;
+  belly.mesh.V = shape.calc_vertices();
+  belly.mesh.F = shape.F;
+  belly.fibres = calc_circular_fibres(shape);
   return belly;
 }
 
-SceneSpec make_scene_from_osim(const OsimModel& osim, const OsimSceneOptions& options) {
+SceneSpec make_scene_from_osim(const OsimModel& osim, const OsimSceneOptions& options, PackingReport* packing_report) {
   SceneSpec spec;
   spec.name = osim.name.empty() ? osim.file.stem().string() : osim.name;
   spec.source = osim.file;
@@ -227,6 +192,7 @@ SceneSpec make_scene_from_osim(const OsimModel& osim, const OsimSceneOptions& op
       throw_unknown_name("muscle", pattern, valid, {.file = osim.file.string(), .suggestion = "see --muscles"});
 
   int skipped = 0;
+  std::vector<BellyShape> shapes;  // one per muscle of spec.muscles
   for (const OsimPathActuator& a : osim.actuators) {
     if (!a.muscle) {
       ++skipped;
@@ -246,10 +212,10 @@ SceneSpec make_scene_from_osim(const OsimModel& osim, const OsimSceneOptions& op
     m.name = a.name;
     m.representation = options.representation;
     try {
-      GeneratedBelly belly = make_fusiform_belly(calc_sub_polyline(polyline, span.start_m, span.end_m), volume,
-                                                 options.belly, p.pennation_at_optimal_rad);
-      m.mesh = std::move(belly.mesh);
-      m.rest_fibres = std::move(belly.fibres);
+      shapes.push_back(make_belly_shape(calc_sub_polyline(polyline, span.start_m, span.end_m), volume,
+                                        options.belly.rings, options.belly.segments, options.belly.fibres,
+                                        p.pennation_at_optimal_rad));
+      shapes.back().name = a.name;
     } catch (const Error& e) {
       throw e.with_object(a.name);
     }
@@ -271,6 +237,29 @@ SceneSpec make_scene_from_osim(const OsimModel& osim, const OsimSceneOptions& op
     m.options = options.muscle_options;
     spec.muscles.push_back(std::move(m));
   }
+  // Packing at the default pose against each other and the obstacle bones (in ground).
+  PackingReport packed;
+  if (options.belly.packing.enabled && !shapes.empty()) {
+    std::vector<PackingObstacle> obstacles;
+    for (const SceneBodySpec& b : spec.bodies) {
+      if (!b.mesh_is_obstacle || !b.mesh) continue;
+      const Transform& X = pose.get_body_transform(skeleton.find_body(b.name));
+      PackingObstacle o{b.name, *b.mesh};
+      o.mesh.V = (o.mesh.V * X.linear().transpose()).rowwise() + X.translation().transpose();
+      obstacles.push_back(std::move(o));
+    }
+    packed = pack_bellies(shapes, obstacles, options.belly.packing);
+    const auto deepest = [](const std::vector<PackingContact>& c) { return c.empty() ? 0.0 : c.front().depth_m; };
+    spdlog::info("{}: generated bellies packed at the default pose in {} iterations: deepest overlap {:.2f} mm -> {:.3f} mm",
+                 spec.name, packed.iterations, 1e3 * deepest(packed.before), 1e3 * deepest(packed.after));
+  }
+  for (size_t i = 0; i < shapes.size(); ++i) {
+    MuscleSpec& m = spec.muscles[i];
+    m.mesh = TriMesh{shapes[i].calc_vertices(), shapes[i].F};
+    const bool changed = i < packed.changed.size() && packed.changed[i];
+    m.rest_fibres = changed ? calc_belly_fibres(shapes[i]) : calc_circular_fibres(shapes[i]);
+  }
+  if (packing_report) *packing_report = std::move(packed);
   if (skipped > 0)
     spdlog::info("{}: {} path actuators without Hill parameters are not made volumetric", osim.file.string(), skipped);
   return spec;

@@ -84,6 +84,7 @@ SchemaNode get_scene_schema(const Registry& registry) {
           optional("muscles", array(string())),
           optional("geometry", array(string())),
           optional("specific_tension", number(1e-3)),
+          optional("pack_bellies", boolean()),
           optional("activation", number(0.0, 1.0)),
           optional("representation", one_of(registry.get_representation_names())),
           optional("options", map(number())),
@@ -193,6 +194,7 @@ SceneSpec parse_scene(const std::string& text, const std::filesystem::path& path
     OsimSceneOptions options;
     for (const auto& m : o.value("muscles", json::array())) options.muscles.push_back(m.get<std::string>());
     options.belly.specific_tension_Pa = 1e4 * o.value("specific_tension", 25.0);
+    options.belly.packing.enabled = o.value("pack_bellies", true);
     options.activation = o.value("activation", -1.0);
     if (o.contains("representation")) options.representation = o.at("representation").get<std::string>();
     const json muscle_options = o.value("options", json::object());  // items() must not outlive it

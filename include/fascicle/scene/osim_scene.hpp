@@ -6,6 +6,7 @@
 
 #include "fascicle/geometry/tri_mesh.hpp"
 #include "fascicle/osim/osim_model.hpp"
+#include "fascicle/scene/belly_packing.hpp"
 #include "fascicle/scene/scene_spec.hpp"
 
 #include <map>
@@ -22,6 +23,9 @@ struct GeneratedBellyOptions {
   int fibres = 30;    // fibres of the generated belly
   // Belly slenderness: largest section radius / belly length (fusiform muscles: about 1/6).
   double slenderness = 1.0 / 6.0;
+  // Packing at the default pose (on by default): the bellies of the scene are made to touch
+  // without overlapping each other or the obstacle bones (pack_bellies, docs/opensim-volumes.md).
+  BellyPackingOptions packing;
 };
 
 // The fusiform solid around a centreline (polyline, >= 2 points, metres): circular sections
@@ -67,6 +71,10 @@ struct OsimSceneOptions {
 
 // The scene. Muscles are the model's Thelen/Millard/DeGroote muscles (others are skipped with a
 // warning); an unknown name in options.muscles is a bad-input error suggesting the nearest one.
-SceneSpec make_scene_from_osim(const OsimModel& osim, const OsimSceneOptions& options = {});
+// With packing on, the bellies are packed against each other and against the obstacle bones at
+// the default pose before they become the muscles' meshes and fibres; `packing_report` (optional)
+// receives the packing's overlaps before/after and radial changes.
+SceneSpec make_scene_from_osim(const OsimModel& osim, const OsimSceneOptions& options = {},
+                               PackingReport* packing_report = nullptr);
 
 }  // namespace fascicle

@@ -1,0 +1,97 @@
+// Packing of generated muscle bellies at the rest pose: each belly's sections become star-shaped
+// (radius varying with angle) so that no belly vertex lies inside another belly or a bone, while
+// every belly keeps its exact volume and its fibres stay inside. Shape rule: docs/opensim-volumes.md.
+#pragma once
+
+#include "fascicle/core/types.hpp"
+#include "fascicle/deformation/framed_line.hpp"
+#include "fascicle/geometry/tri_mesh.hpp"
+
+#include <string>
+#include <vector>
+
+namespace fascicle {
+
+// A generated belly in its own parametrisation: vertex v = centres.row(v) + scale(v) · offsets.row(v),
+// where offsets are the unit-radius profile offsets (|offset| = √sin(πu) of the vertex's ring,
+// perpendicular to the centreline in the ring's rotation-minimising frame; zero at the two tips).
+// The unpacked belly has scale(v) = R for every vertex (R fitted to the volume).
+struct BellyShape {
+  std::string name;
+  FramedLine line;   // rings + 2 samples: sample k is ring k (0 and rings + 1 are the tips)
+  int rings = 0;
+  int segments = 0;
+  Points3 centres;   // #V x 3: the ring's path point (tips: the tip), plus the ring's packing shift
+  Points3 offsets;   // #V x 3
+  VecX scale;        // #V, metres per unit offset
+  Triangles F;       // outward
+  double volume_m3 = 0.0;
+  double R = 0.0;    // the fitted radius of the unpacked belly
+  double pennation_rad = 0.0;
+  int fibres = 30;
+
+  Points3 calc_vertices() const;  // centres + scale ∘ offsets
+  Vec3 calc_vertex(Eigen::Index v) const;
+};
+
+// The circular belly (the shape rule's steps 2–4): offsets from the centreline and R fitted by Newton
+// so the mesh encloses volume_m3 to 1e-9 relative. Throws fascicle::Error as make_fusiform_belly.
+BellyShape make_belly_shape(const Points3& centreline, double volume_m3, int rings, int segments, int fibres,
+                            double pennation_rad);
+
+// Fibres of a belly whose sections may be star-shaped: the fusiform rules of make_fusiform_belly
+// (parallel for α ≤ 5°, multipennate above) with the section radius taken, in each fibre's direction
+// φ, from the polygonal section itself (the ray from the centre at angle φ meets the edge between the
+// two vertices around φ), linear in arc length between rings. Fibre points then lie at fraction ρ
+// ≤ 0.9 (parallel) or at most 0.95 (pennate ends) of the local section radius.
+std::vector<Points3> calc_belly_fibres(const BellyShape& shape);
+
+struct BellyPackingOptions {
+  bool enabled = true;
+  double tolerance_m = 1.0e-4;       // deepest allowed vertex depth inside another belly or a bone
+  double margin_m = 5.0e-5;          // pushed vertices end this far beyond the contact
+  int max_iterations = 100;
+  double min_scale_fraction = 0.15;  // a vertex is never pulled below this fraction of R
+  int hold_iterations = 8;           // a pushed vertex is held (not regrown) for this many iterations
+  bool shift_rings = true;           // sections may also move off the path (in their plane)
+  double max_shift_fraction = 1.0;   // ... by at most this fraction of R
+  double max_shift_slope = 0.5;      // ... changing by at most this much per unit length along the belly
+};
+
+// An obstacle at the rest pose, in the bellies' frame (ground).
+struct PackingObstacle {
+  std::string name;
+  TriMesh mesh;  // closed, outward
+};
+
+struct PackingContact {
+  std::string a, b;      // belly names (b: a belly or a bone)
+  double depth_m = 0.0;  // deepest vertex of a inside b (closest-point distance)
+};
+
+struct PackingReport {
+  int iterations = 0;
+  bool converged = true;
+  std::vector<PackingContact> before;  // per ordered pair, deepest vertex depth at the start, > 0 only
+  std::vector<PackingContact> after;   // the same after packing
+  std::vector<double> max_radial_change_m;   // per belly: max |Δ radius| over its vertices
+  std::vector<double> mean_radial_change_m;  // per belly: mean |Δ radius| over its vertices
+  std::vector<bool> changed;                 // per belly: any vertex moved
+};
+
+// Deepest vertex of every belly inside every other belly and every obstacle (pairs with depth > 0).
+std::vector<PackingContact> calc_packing_contacts(const std::vector<BellyShape>& bellies,
+                                                  const std::vector<PackingObstacle>& obstacles);
+
+// Packs the bellies in place (their `scale` changes; volumes stay exact). Iterates: vertices inside
+// another belly or an obstacle are moved radially (towards their centre) to that surface plus a
+// margin — half the radial depth each for two bellies, all of it for a belly in a bone — and are
+// held there; the other vertices are scaled by one factor per belly (scalar Newton) to restore the
+// volume; the free vertices bordering a contact are tapered (lowering-only smoothing). Stops when the
+// deepest overlap is ≤ tolerance or after max_iterations; a belly that cannot get out (a centreline
+// inside another solid, a section squeezed to min_scale_fraction) is named in a warning with the
+// remaining depth. Deterministic (Jacobi updates from one snapshot per iteration; any thread count).
+PackingReport pack_bellies(std::vector<BellyShape>& bellies, const std::vector<PackingObstacle>& obstacles,
+                           const BellyPackingOptions& options = {});
+
+}  // namespace fascicle
