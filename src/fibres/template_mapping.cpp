@@ -374,6 +374,11 @@ TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
           best_area = A;
           best = static_cast<int>(c);
         }
+      if (L[best].rows() < 8)
+        throw_bad_input("an iso-contour of the attachment potential crosses only " +
+                            std::to_string(L[best].rows()) + " mesh edges, too few to map the template",
+                        {.suggestion = "refine the muscle mesh or use plane slicing "
+                                       "(TemplateMapOptions::slicing = planes)"});
       loops[k] = std::move(L[best]);
       normal[k] = calc_vector_area(loops[k]).normalized();
     }
