@@ -119,7 +119,9 @@ struct Worst {
 
 // One quasi-static (or dynamic) frame per iteration while the foot swings; `loft`: the display
 // (and volume) surface is the segmented rest surface carried by the particles, as in scenes.
-void run_shank_frames(benchmark::State& state, bool loft) {
+// `surface_particles`: the loft's vertices are particles of the system and the display surfaces
+// are separated (FibresFirstOptions::surface_particles + separate_surfaces).
+void run_shank_frames(benchmark::State& state, bool loft, bool surface_particles = false) {
   ThreadLimit one(1);
   const Shank& s = shank();
   FibresFirstOptions o;
@@ -128,6 +130,8 @@ void run_shank_frames(benchmark::State& state, bool loft) {
   o.max_contact_rounds = static_cast<int>(state.range(2));
   o.anderson_window = static_cast<int>(state.range(3));
   o.step_tolerance = 1e-4 * static_cast<double>(state.range(4));
+  o.surface_particles = surface_particles;
+  o.separate_surfaces = surface_particles;
   const FibresFirstModel model =
       build_fibres_first_model(loft ? s.loft_muscles : s.muscles, s.bone_list(), o);
   FibresFirstSolver solver(model);
@@ -142,11 +146,13 @@ void run_shank_frames(benchmark::State& state, bool loft) {
   worst.report(state, model.num_particles());
   state.counters["setup_s"] = s.setup_s;
   state.SetLabel(std::string(o.dynamic ? "VH shank, dynamic" : "VH shank, quasi-static") +
-                 (loft ? ", loft surface" : ", hull tube"));
+                 (loft ? (surface_particles ? ", surface particles, separated" : ", loft surface")
+                       : ", hull tube"));
 }
 
 void BM_ShankFrame(benchmark::State& state) { run_shank_frames(state, false); }
 void BM_ShankFrameLoft(benchmark::State& state) { run_shank_frames(state, true); }
+void BM_ShankFrameSurfaceParticles(benchmark::State& state) { run_shank_frames(state, true, true); }
 // Args: dynamic, iterations per round, contact rounds, Anderson window (0: plain projective
 // dynamics), step tolerance in units of 1e-4
 BENCHMARK(BM_ShankFrame)
@@ -166,6 +172,11 @@ BENCHMARK(BM_ShankFrameLoft)
     ->Unit(benchmark::kMillisecond)
     ->Iterations(120);
 
+// The loft's vertices as particles with display-surface separation (option, off by default).
+BENCHMARK(BM_ShankFrameSurfaceParticles)
+    ->Args({0, 20, 4, 5, 30})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(120);
 // 43 bundles with irregular (R2-sampled) elliptic cross-sections on a 7 x 7 grid, touching.
 struct Synthetic {
   std::vector<std::unique_ptr<MeshQuery>> bones;

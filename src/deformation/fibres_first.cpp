@@ -352,6 +352,17 @@ namespace {
 void init_surface_separation(const FibresFirstModel& model,
                              const std::vector<std::unique_ptr<MuscleSystem>>& systems,
                              SurfaceSeparation& ss);
+
+// The culling distances at rest (per bone, per particle): the clearance outside, minus the depth
+// inside (a particle inside at rest is tested at every detection, and its bounded closest-point
+// query must reach the surface at its rest depth).
+std::vector<VecX> calc_start_clearance(const FibresFirstModel& model) {
+  std::vector<VecX> clearance = model.rest_bone_clearance;
+  for (std::size_t b = 0; b < clearance.size(); ++b)
+    for (Eigen::Index p = 0; p < clearance[b].size(); ++p)
+      if (model.rest_bone_depth[b][p] > 0.0) clearance[b][p] = -model.rest_bone_depth[b][p];
+  return clearance;
+}
 }  // namespace
 
 FibresFirstSolver::FibresFirstSolver(const FibresFirstModel& model)
@@ -391,7 +402,7 @@ FibresFirstSolver::FibresFirstSolver(const FibresFirstModel& model)
     sys.weight.assign(nf, 0.0);
   }
   ws.checked_at.assign(model_.num_bones(), model_.rest);
-  ws.clearance = model_.rest_bone_clearance;
+  ws.clearance = calc_start_clearance(model_);
   ws.bone_contacts.clear(N);
   init_surface_separation(model_, ws.systems, ws.surfaces);
   ws.pair_target = Points3::Zero(N, 3);
@@ -415,7 +426,7 @@ void FibresFirstSolver::reset() {
   ws.has_previous = false;
   ws.correction.resize(0, 3);
   ws.checked_at.assign(model_.num_bones(), model_.rest);
-  ws.clearance = model_.rest_bone_clearance;
+  ws.clearance = calc_start_clearance(model_);
   x_ = model_.rest;
   frames_.assign(model_.muscles.size(), {});
   info_ = {};
@@ -455,8 +466,11 @@ int detect_bone_contacts(const FrameContext& c, const Points3& x, BoneContacts& 
     const MeshQuery& bone = *model.bones[b];
     const Transform X_rest_now = c.motions[b].inverse();
     for (int p = 0; p < model.num_particles(); ++p) {
-      // fixed particles follow their bone and cannot be moved: neither contacts nor measured
-      if (model.role[p] != ParticleRole::free || model.rest_bone_depth[b][p] > 0.0) continue;
+      // fixed particles follow their bone and cannot be moved: neither contacts nor measured.
+      // A particle inside the bone at rest (depth d0) may stay as deep: only depth beyond d0
+      // counts, and its contact plane lies at depth d0 - margin (its clearance is 0: never culled)
+      if (model.role[p] != ParticleRole::free) continue;
+      const double rest_depth = model.rest_bone_depth[b][p];
       const Vec3 local = X_rest_now * Vec3(x.row(p).transpose());
       const double moved = (local - checked_at[b].row(p).transpose()).norm();
       if (moved < clearance[b][p]) continue;  // cannot have reached the bone
@@ -473,9 +487,10 @@ int detect_bone_contacts(const FrameContext& c, const Points3& x, BoneContacts& 
       Vec3 face_normal;
       if (!detail::calc_is_behind_bone(bone, local, cp, &face_normal)) continue;
       clearance[b][p] = -cp.distance;  // inside: minus the depth (never culls)
+      if (cp.distance <= rest_depth) continue;  // not deeper than at rest
       if (max_depth_per_muscle) {
         double& d = (*max_depth_per_muscle)[model.muscle_of[p]];
-        d = std::max(d, cp.distance);
+        d = std::max(d, cp.distance - rest_depth);
       }
       if (!add) continue;
       // a free slot, and not a second contact with the same bone
@@ -492,14 +507,14 @@ int detect_bone_contacts(const FrameContext& c, const Points3& x, BoneContacts& 
         // entered) no longer fits where it is now; move the plane to the current closest point
         for (int s = 0; s < BoneContacts::slots; ++s)
           if (contacts.bone[s][p] == b) {
-            contacts.target_rest[s][p] = cp.point + margin * n;
+            contacts.target_rest[s][p] = cp.point + (margin - rest_depth) * n;
             contacts.normal_rest[s][p] = n;
           }
         continue;
       }
       if (slot < 0) continue;
       contacts.bone[slot][p] = b;
-      contacts.target_rest[slot][p] = cp.point + margin * n;
+      contacts.target_rest[slot][p] = cp.point + (margin - rest_depth) * n;
       contacts.normal_rest[slot][p] = n;
       ++added;
     }

@@ -104,6 +104,37 @@ TEST(FibresFirst, RigidMotionOfAllBonesMovesTheBundleRigidly) {
   EXPECT_LT((solver.get_particles() - expected).cwiseAbs().maxCoeff(), 1e-9);
 }
 
+// A block whose face lies 1 mm inside the bundle's outer fibres at rest (overlapping segmentations)
+// and then moves 4 mm further in: particles inside it at rest may stay at their rest depth but go
+// no deeper (depth beyond rest <= 1e-9 m, measured independently), and the bundle is pushed.
+TEST(FibresFirst, ParticlesInsideABoneAtRestGoNoDeeper) {
+  const double L = 0.1;
+  const EndBones ends(L);
+  const MeshQuery block(moved(make_box(Vec3(0.01, 0.03, 0.01)), Vec3(0.013, 0.0, L / 2)));
+  const FibreBundleSpec spec{"overlapping", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 3, 3, 0.004), 0, 1};
+  const FibresFirstOptions o;
+  const FibresFirstModel model = build_fibres_first_model({spec}, {&ends.bottom, &ends.top, &block}, o);
+  int inside_at_rest = 0;
+  for (int p = 0; p < model.num_particles(); ++p) inside_at_rest += model.rest_bone_depth[2][p] > 0.0;
+  EXPECT_EQ(inside_at_rest, 3 * 3);  // the x = 4 mm fibres' particles within the block's 20 mm
+  FibresFirstSolver solver(model);
+  for (int k = 1; k <= 4; ++k) {
+    const Transform B = translation(Vec3(-0.001 * k, 0, 0));
+    solver.calc_frame({{Transform::Identity(), Transform::Identity(), B}});
+    const FibreBundleFrame& fr = solver.get_muscles()[0];
+    EXPECT_LE(fr.max_bone_penetration_m, 1e-9) << "frame " << k;
+    EXPECT_LT(fr.relative_volume_error, o.volume_tolerance);
+    const Points3& x = solver.get_particles();
+    for (int p = 0; p < x.rows(); ++p) {
+      const Vec3 local = B.inverse() * Vec3(x.row(p).transpose());
+      if (model.role[p] != ParticleRole::free || !block.calc_is_inside(local)) continue;
+      EXPECT_LE(block.calc_closest_point(local).distance, model.rest_bone_depth[2][p] + 1e-9)
+          << "particle " << p << " frame " << k;
+    }
+  }
+  EXPECT_LT(solver.get_particles().col(0).minCoeff(), -0.006);
+}
+
 // A single fibre (no volume) stretched along its axis by moving its insertion bone. Along the
 // axis the springs act as linear springs of the coordinate z, so the equilibrium is the solution
 // of a small linear system: with springs only, uniform spacing (L + d) / (P - 1); with bending
