@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <memory>
 
 namespace fascicle {
@@ -374,32 +375,41 @@ std::vector<PackingContact> list_contacts(const std::vector<BellyShape>& bellies
   return out;
 }
 
-// Scales the free vertices' scale by one factor s so the belly encloses its volume (scalar Newton,
-// s kept in [1/2, 4]); false (and the belly unchanged) when that cannot reach the volume.
-bool restore_volume(BellyShape& b, const std::vector<char>& free) {
+// Scales the free vertices' scale by one factor s so the belly encloses its volume, no vertex
+// growing beyond `cap` (a vertex already above it is left as it is): V(s) is continuous and
+// non-decreasing, solved by Newton safeguarded by bisection on [1, s_max]. False (and the belly
+// unchanged) when even s_max cannot reach the volume.
+bool restore_volume(BellyShape& b, const std::vector<char>& free, double cap) {
   const Vec3 centre = b.centres.colwise().mean().transpose();
   const VecX base = b.scale;
+  double s_max = 1.0;
+  for (Eigen::Index v = 0; v < base.size(); ++v)
+    if (free[v] && base(v) > 0.0 && base(v) < cap) s_max = std::max(s_max, cap / base(v));
   const auto scaled = [&](double s) {
     VecX out = base;
     for (Eigen::Index v = 0; v < out.size(); ++v)
-      if (free[v]) out(v) = s * base(v);
+      if (free[v] && base(v) < cap) out(v) = std::min(s * base(v), cap);
     return out;
   };
+  BellyShape t;
+  t.centres = b.centres;
+  t.offsets = b.offsets;
   const auto volume_at = [&](double s) {
-    BellyShape t;
-    t.centres = b.centres;
-    t.offsets = b.offsets;
     t.scale = scaled(s);
     return calc_enclosed_volume(t.calc_vertices(), b.F, centre);
   };
+  double lo = 1.0, hi = s_max;
+  if (volume_at(hi) < b.volume_m3) return false;
   double s = 1.0;
-  for (int it = 0; it < 30; ++it) {
+  for (int it = 0; it < 60; ++it) {
     const double v = volume_at(s);
     if (std::abs(v - b.volume_m3) <= 1e-12 * b.volume_m3) break;
-    const double h = 1e-6 * s;
+    (v < b.volume_m3 ? lo : hi) = s;
+    const double h = 1e-7 * s;
     const double dv = (volume_at(s + h) - volume_at(s - h)) / (2.0 * h);
-    if (!(dv > 0.0)) return false;
-    s = std::clamp(s - (v - b.volume_m3) / dv, 0.5, 4.0);
+    double next = dv > 0.0 ? s - (v - b.volume_m3) / dv : 0.5 * (lo + hi);
+    if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+    s = next;
   }
   if (std::abs(volume_at(s) - b.volume_m3) > 1e-9 * b.volume_m3) return false;
   b.scale = scaled(s);
@@ -604,12 +614,13 @@ PackingReport pack_bellies(std::vector<BellyShape>& bellies, const std::vector<P
         free[v] = in_contact[v] ? 0 : 1;
         any_free = any_free || free[v];
       }
-      if (!any_free || !restore_volume(b, free)) {
+      const double cap = o.max_growth * b.R;
+      if (!any_free || !restore_volume(b, free, cap)) {
         // Nothing left to grow (or the free part cannot hold the volume): every vertex grows,
         // contacts included; the overlap that leaves is reported at the end.
         all_in_contact[i] = 1;
         for (Eigen::Index v = 1; v + 1 < nv; ++v) free[v] = 1;
-        if (!restore_volume(b, free))
+        if (!restore_volume(b, free, cap) && !restore_volume(b, free, std::numeric_limits<double>::infinity()))
           throw_numerical("belly packing: could not restore the volume", {.object = b.name});
       }
       moved[i] = 1;

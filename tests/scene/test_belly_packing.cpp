@@ -191,18 +191,25 @@ TEST(BellyPacking, Gait2392RightLegBelliesArePacked) {
                 1e3 * report.mean_radial_change_m[i], 1e3 * report.max_radial_change_m[i]);
   ASSERT_FALSE(report.before.empty());
   EXPECT_GT(report.before.front().depth_m, 0.03);  // med_gas_r: 37.5 mm unpacked
-  // The iteration cap (100) leaves these pairs above 0.1 mm (docs/opensim-volumes.md, limits); the
-  // floor below is what every pair meets (37.3 mm before packing).
+  // The iteration cap (100) and the growth cap (2 R) leave these 30 ordered pairs above 0.1 mm
+  // (docs/opensim-volumes.md, limits); every pair meets the 1 mm floor below (37.3 mm unpacked).
   std::vector<std::string> missed;
   for (const PackingContact& c : report.after)
     if (c.depth_m > kTolerance) missed.push_back(c.a + " in " + c.b);
   const std::vector<std::string> known_misses = {
-      "gem_r in femur_r",           "glut_med1_r in glut_min2_r", "per_brev_r in tibia_r",
-      "glut_min3_r in glut_min2_r", "glut_min2_r in glut_med1_r", "glut_min2_r in glut_min3_r",
-      "glut_min2_r in glut_min1_r", "glut_min3_r in femur_r"};
+      "glut_min3_r in peri_r", "peri_r in glut_min3_r", "glut_min3_r in femur_r",
+      "glut_min3_r in glut_med3_r", "glut_med2_r in glut_max1_r", "glut_max1_r in glut_med2_r",
+      "glut_med3_r in glut_max1_r", "glut_min1_r in glut_min2_r", "semimem_r in add_mag3_r",
+      "glut_med3_r in glut_min3_r", "per_brev_r in tibia_r", "add_mag3_r in semimem_r",
+      "bifemlh_r in semimem_r", "pect_r in iliacus_r", "glut_min3_r in glut_min2_r",
+      "glut_min2_r in glut_min1_r", "per_brev_r in soleus_r", "glut_med3_r in glut_med2_r",
+      "glut_max1_r in glut_med3_r", "per_tert_r in tibia_r", "add_brev_r in add_long_r",
+      "semimem_r in bifemlh_r", "semimem_r in semiten_r", "sar_r in femur_r",
+      "glut_min2_r in glut_min3_r", "glut_min2_r in glut_med2_r", "pect_r in add_brev_r",
+      "add_long_r in add_brev_r", "add_mag2_r in add_long_r", "add_long_r in add_mag2_r"};
   EXPECT_EQ(missed, known_misses);
   ASSERT_FALSE(report.after.empty());
-  EXPECT_LE(report.after.front().depth_m, 2.0e-3);
+  EXPECT_LE(report.after.front().depth_m, 1.0e-3);
   // Fibres inside their packed bellies (fibre points at most 0.1 mm outside).
   int outside = 0;
   for (const MuscleSpec& m : spec.muscles) {

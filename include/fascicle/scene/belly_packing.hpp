@@ -52,6 +52,7 @@ struct BellyPackingOptions {
   double margin_m = 5.0e-5;          // pushed vertices end this far beyond the contact
   int max_iterations = 100;
   double min_scale_fraction = 0.15;  // a vertex is never pulled below this fraction of R
+  double max_growth = 2.0;           // no vertex grows beyond this multiple of R (no spikes)
   int hold_iterations = 8;           // a pushed vertex is held (not regrown) for this many iterations
   bool shift_rings = true;           // sections may also move off the path (in their plane)
   double max_shift_fraction = 1.0;   // ... by at most this fraction of R
