@@ -377,14 +377,16 @@ std::vector<PackingContact> list_contacts(const std::vector<BellyShape>& bellies
 
 // Scales the free vertices' scale by one factor s so the belly encloses its volume, no vertex
 // growing beyond `cap` (a vertex already above it is left as it is): V(s) is continuous and
-// non-decreasing, solved by Newton safeguarded by bisection on [1, s_max]. False (and the belly
+// non-decreasing, solved by Newton safeguarded by bisection on [0, s_max]. False (and the belly
 // unchanged) when even s_max cannot reach the volume.
 bool restore_volume(BellyShape& b, const std::vector<char>& free, double cap) {
   const Vec3 centre = b.centres.colwise().mean().transpose();
   const VecX base = b.scale;
   double s_max = 1.0;
-  for (Eigen::Index v = 0; v < base.size(); ++v)
-    if (free[v] && base(v) > 0.0 && base(v) < cap) s_max = std::max(s_max, cap / base(v));
+  if (std::isfinite(cap)) {
+    for (Eigen::Index v = 0; v < base.size(); ++v)
+      if (free[v] && base(v) > 0.0 && base(v) < cap) s_max = std::max(s_max, cap / base(v));
+  }
   const auto scaled = [&](double s) {
     VecX out = base;
     for (Eigen::Index v = 0; v < out.size(); ++v)
@@ -398,8 +400,10 @@ bool restore_volume(BellyShape& b, const std::vector<char>& free, double cap) {
     t.scale = scaled(s);
     return calc_enclosed_volume(t.calc_vertices(), b.F, centre);
   };
-  double lo = 1.0, hi = s_max;
-  if (volume_at(hi) < b.volume_m3) return false;
+  if (!std::isfinite(cap))  // uncapped: double until the volume is enclosed (V grows without bound)
+    for (int k = 0; k < 60 && volume_at(s_max) < b.volume_m3; ++k) s_max *= 2.0;
+  double lo = 0.0, hi = s_max;  // V(1) may exceed the volume (ring shifts change it too)
+  if (!(volume_at(hi) >= b.volume_m3)) return false;
   double s = 1.0;
   for (int it = 0; it < 60; ++it) {
     const double v = volume_at(s);
