@@ -7,6 +7,8 @@
 #include "fascicle/osim/osim_model.hpp"
 #include "fascicle/scene/belly_packing.hpp"
 #include "fascicle/scene/osim_scene.hpp"
+#include "fascicle/scene/registry.hpp"
+#include "fascicle/scene/scene_json.hpp"
 
 #include "test_support.hpp"
 
@@ -15,6 +17,8 @@
 
 #include <cmath>
 #include <cstdio>
+#include <fstream>
+#include <stdexcept>
 
 namespace fascicle {
 namespace {
@@ -242,6 +246,42 @@ TEST(BellyPacking, Gait2392RightLegBelliesArePacked) {
     const MuscleParameters& p = *m.actuator.parameters;
     EXPECT_NEAR(volume, p.max_isometric_force_N / 25e4 * p.optimal_fiber_length_m, 1e-9 * volume) << m.name;
   }
+}
+
+// "pack_bellies" under "opensim_model": false gives the unpacked bellies, bit for bit; the
+// default packs them (soleus_r and the gastrocnemii overlap by 3 cm unpacked).
+TEST(BellyPacking, SceneOptionTurnsPackingOff) {
+  const auto load = [](const char* pack) {
+    const auto dir = test::scratch_dir("belly_packing_option");
+    const auto file = dir / "scene.json";
+    std::ofstream(file) << R"({"fascicle_scene": 1, "opensim_model": {"file": ")"
+                        << test::data_path("opensim/models/gait2392_millard2012muscle.osim").string()
+                        << R"(", "muscles": ["soleus_r", "med_gas_r", "lat_gas_r"])" << pack << "}}";
+    return load_scene(file, make_default_registry());
+  };
+  const SceneSpec off = load(R"(, "pack_bellies": false)"), on = load("");
+  OsimImportOptions io;
+  io.geometry_dirs.push_back(test::data_path("opensim/Geometry"));
+  io.warn = false;
+  OsimSceneOptions o;
+  o.muscles = {"soleus_r", "med_gas_r", "lat_gas_r"};
+  o.belly.packing.enabled = false;
+  const SceneSpec reference =
+      make_scene_from_osim(read_osim(test::data_path("opensim/models/gait2392_millard2012muscle.osim"), io), o);
+  ASSERT_EQ(off.muscles.size(), 3u);
+  ASSERT_EQ(on.muscles.size(), 3u);
+  for (size_t i = 0; i < 3; ++i) {
+    EXPECT_TRUE(off.muscles[i].mesh->V == reference.muscles[i].mesh->V) << off.muscles[i].name;
+    EXPECT_FALSE(on.muscles[i].mesh->V == reference.muscles[i].mesh->V) << on.muscles[i].name;
+  }
+  const auto mesh = [](const SceneSpec& spec, const std::string& name) {
+    for (const MuscleSpec& m : spec.muscles)
+      if (m.name == name) return *m.mesh;
+    throw std::runtime_error("no muscle " + name);
+  };
+  EXPECT_GT(calc_depth_inside(mesh(off, "med_gas_r"), mesh(off, "soleus_r")), 0.03);  // 35.6 mm
+  EXPECT_LE(calc_depth_inside(mesh(on, "med_gas_r"), mesh(on, "soleus_r")), kTolerance);
+  EXPECT_LE(calc_depth_inside(mesh(on, "soleus_r"), mesh(on, "med_gas_r")), kTolerance);
 }
 
 }  // namespace
