@@ -84,14 +84,17 @@ struct PackingReport {
 std::vector<PackingContact> calc_packing_contacts(const std::vector<BellyShape>& bellies,
                                                   const std::vector<PackingObstacle>& obstacles);
 
-// Packs the bellies in place (their `scale` changes; volumes stay exact). Iterates: vertices inside
-// another belly or an obstacle are moved radially (towards their centre) to that surface plus a
-// margin — half the radial depth each for two bellies, all of it for a belly in a bone — and are
-// held there; the other vertices are scaled by one factor per belly (scalar Newton) to restore the
-// volume; the free vertices bordering a contact are tapered (lowering-only smoothing). Stops when the
-// deepest overlap is ≤ tolerance or after max_iterations; a belly that cannot get out (a centreline
-// inside another solid, a section squeezed to min_scale_fraction) is named in a warning with the
-// remaining depth. Deterministic (Jacobi updates from one snapshot per iteration; any thread count).
+// Packs the bellies in place (their `scale` and `centres` change; volumes stay exact to 1e-9).
+// Iterates (docs/opensim-volumes.md, step 6): a vertex inside another belly moves radially by half
+// its radial depth and the face it is in by half the closest-point depth (the face all of it when
+// the vertex is at its minimum radius); a vertex inside an obstacle takes all of it; pushed rings
+// also shift off the path in their plane (smoothed, slope-limited, at most max_shift_fraction R);
+// pushed vertices are held for hold_iterations; the others are scaled by one factor per belly (no
+// vertex beyond max_growth R; Newton safeguarded by bisection) to restore the volume; free vertices
+// bordering a contact are tapered (lowering only). Stops when the deepest overlap is <= tolerance or
+// after max_iterations, then warns naming the pairs left, their depths and why (tip inside another
+// solid, squeezed, in contact all round). Never throws for lack of space. Deterministic: Jacobi
+// updates from one snapshot per iteration, the same result for any thread count.
 PackingReport pack_bellies(std::vector<BellyShape>& bellies, const std::vector<PackingObstacle>& obstacles,
                            const BellyPackingOptions& options = {});
 
