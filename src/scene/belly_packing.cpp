@@ -5,6 +5,7 @@
 #include "fascicle/core/parallel.hpp"
 #include "fascicle/geometry/mass_properties.hpp"
 #include "fascicle/geometry/mesh_query.hpp"
+#include "fascicle/geometry/mesh_validation.hpp"
 
 #include <spdlog/spdlog.h>
 
@@ -257,6 +258,7 @@ struct Solids {
   std::vector<const MeshQuery*> query;
   std::vector<Eigen::AlignedBox3d> box;
   std::vector<std::vector<Capsule>> capsules;  // bellies only
+  std::vector<char> frozen;  // per belly: held fixed (a belly re-packed alone against the others); empty: none
 };
 
 // What one belly sees in a snapshot: per vertex the radial push (m) it needs, per solid the deepest
@@ -284,11 +286,17 @@ struct PairHit {
   Vec3 tip_move[2] = {Vec3::Zero(), Vec3::Zero()};
 };
 
-PairHit calc_pair_hit(const BellyShape& b, const Points3& V, int j, int num_bellies, const Solids& solids,
+PairHit calc_pair_hit(const BellyShape& b, const Points3& V, int self, int j, int num_bellies, const Solids& solids,
                       const BellyPackingOptions& o) {
   PairHit h;
   h.solid = j;
   const bool other_is_belly = j < num_bellies;
+  // A frozen belly neither moves nor takes a share: what it touches takes all of the push; a frozen
+  // belly against an obstacle or another frozen belly is not looked at.
+  const bool self_frozen = !solids.frozen.empty() && solids.frozen[self];
+  const bool other_frozen = !other_is_belly || (!solids.frozen.empty() && solids.frozen[j]);
+  if (self_frozen && other_frozen) return h;
+  const bool other_yields = other_is_belly && !other_frozen;
   const MeshQuery& q = *solids.query[j];
   const double lowest = o.min_scale_fraction * b.R;
   for (Eigen::Index v = 0; v < V.rows(); ++v) {
@@ -304,14 +312,14 @@ PairHit calc_pair_hit(const BellyShape& b, const Points3& V, int j, int num_bell
       // A tip cannot move radially: it moves (with the ring shifts) towards the surface.
       h.tip_inside = true;
       if (cp.distance > 0.0) {
-        const Vec3 move = (cp.point - x) * (((other_is_belly ? 0.5 : 1.0) * cp.distance + o.margin_m) / cp.distance);
+        const Vec3 move = (cp.point - x) * (((other_yields ? 0.5 : 1.0) * cp.distance + o.margin_m) / cp.distance);
         Vec3& t = h.tip_move[v == 0 ? 0 : 1];
         if (move.norm() > t.norm()) t = move;
       }
     }
     // Belly–belly: the vertex and the face it is in each take half (the face all of it when the
     // vertex cannot move). Belly–bone: the vertex takes all.
-    const double own_share = other_is_belly ? 0.5 : 1.0;
+    const double own_share = other_yields ? 0.5 : 1.0;
     if (r > 0.0) {
       // Radial depth: from the vertex towards its centre to where it leaves the other solid (a
       // squeezed vertex cannot take it, but its push still shifts its section).
@@ -320,9 +328,9 @@ PairHit calc_pair_hit(const BellyShape& b, const Points3& V, int j, int num_bell
       const double radial = hit ? hit->t : r;
       h.push.emplace_back(static_cast<int>(v), own_share * radial + o.margin_m);
     }
-    if (other_is_belly) {
+    if (other_yields) {
       // The face: the smallest vertex moves that move the closest point by the face's share.
-      const double amount = (stuck ? 1.0 : 0.5) * cp.distance + o.margin_m;
+      const double amount = (stuck || self_frozen ? 1.0 : 0.5) * cp.distance + o.margin_m;
       const Vec3 w = cp.barycentric;
       const double w2 = w.squaredNorm();
       for (int c = 0; c < 3; ++c)
@@ -347,7 +355,7 @@ BellyHits calc_hits(const BellyShape& b, const Points3& V, int self, int num_bel
     while (cache && c < cache->size() && (*cache)[c].solid < j) ++c;
     const bool reuse = cache && moved && c < cache->size() && (*cache)[c].solid == j && !(*moved)[self] &&
                        (j >= num_bellies || !(*moved)[j]);
-    PairHit p = reuse ? std::move((*cache)[c]) : calc_pair_hit(b, V, j, num_bellies, solids, o);
+    PairHit p = reuse ? std::move((*cache)[c]) : calc_pair_hit(b, V, self, j, num_bellies, solids, o);
     if (p.depth > 0.0) pairs.push_back(std::move(p));
   }
   for (const PairHit& p : pairs) {
@@ -379,18 +387,20 @@ std::vector<PackingContact> list_contacts(const std::vector<BellyShape>& bellies
 // growing beyond `cap` (a vertex already above it is left as it is): V(s) is continuous and
 // non-decreasing, solved by Newton safeguarded by bisection on [0, s_max]. False (and the belly
 // unchanged) when even s_max cannot reach the volume.
-bool restore_volume(BellyShape& b, const std::vector<char>& free, double cap) {
+bool restore_volume(BellyShape& b, const std::vector<char>& free, const VecX& cap) {
   const Vec3 centre = b.centres.colwise().mean().transpose();
   const VecX base = b.scale;
   double s_max = 1.0;
-  if (std::isfinite(cap)) {
-    for (Eigen::Index v = 0; v < base.size(); ++v)
-      if (free[v] && base(v) > 0.0 && base(v) < cap) s_max = std::max(s_max, cap / base(v));
+  bool unbounded = false;  // a free vertex without a cap
+  for (Eigen::Index v = 0; v < base.size(); ++v) {
+    if (!free[v]) continue;
+    if (!std::isfinite(cap(v))) unbounded = true;
+    else if (base(v) > 0.0 && base(v) < cap(v)) s_max = std::max(s_max, cap(v) / base(v));
   }
   const auto scaled = [&](double s) {
     VecX out = base;
     for (Eigen::Index v = 0; v < out.size(); ++v)
-      if (free[v] && base(v) < cap) out(v) = std::min(s * base(v), cap);
+      if (free[v] && base(v) < cap(v)) out(v) = std::min(s * base(v), cap(v));
     return out;
   };
   BellyShape t;
@@ -400,7 +410,7 @@ bool restore_volume(BellyShape& b, const std::vector<char>& free, double cap) {
     t.scale = scaled(s);
     return calc_enclosed_volume(t.calc_vertices(), b.F, centre);
   };
-  if (!std::isfinite(cap))  // uncapped: double until the volume is enclosed (V grows without bound)
+  if (unbounded)  // uncapped: double until the volume is enclosed (V grows without bound)
     for (int k = 0; k < 60 && volume_at(s_max) < b.volume_m3; ++k) s_max *= 2.0;
   double lo = 0.0, hi = s_max;  // V(1) may exceed the volume (ring shifts change it too)
   if (!(volume_at(hi) >= b.volume_m3)) return false;
@@ -450,8 +460,40 @@ std::vector<PackingContact> calc_packing_contacts(const std::vector<BellyShape>&
   return list_contacts(bellies, obstacles, hits);
 }
 
+namespace {
+
+// Where a belly's crossing faces are, for the debug log: "tip" for the tip fans, "k-k+1" for the
+// band between rings k and k+1 (faces are laid out per segment: two tip faces, then the bands).
+std::string describe_faces(const BellyShape& b, const FacePairs& pairs) {
+  std::vector<int> bands;  // -1: a tip fan
+  for (const auto& p : pairs)
+    for (int f : p) {
+      const int r = f % (2 * b.rings);
+      bands.push_back(r < 2 ? -1 : (r - 2) / 2 + 1);
+    }
+  std::sort(bands.begin(), bands.end());
+  bands.erase(std::unique(bands.begin(), bands.end()), bands.end());
+  std::string out;
+  for (int k : bands) out += (out.empty() ? "" : ", ") + (k < 0 ? std::string("tip") : fmt::format("{}-{}", k, k + 1));
+  return out;
+}
+
+constexpr int kSectionWindow = 6;  // rings each side that keep_sections_apart checks
+
+PackingReport pack_bellies_impl(std::vector<BellyShape>& bellies, const std::vector<PackingObstacle>& obstacles,
+                                const BellyPackingOptions& o, bool check_folds, const std::vector<char>& frozen);
+
+}  // namespace
+
 PackingReport pack_bellies(std::vector<BellyShape>& bellies, const std::vector<PackingObstacle>& obstacles,
                            const BellyPackingOptions& o) {
+  return pack_bellies_impl(bellies, obstacles, o, true, {});
+}
+
+namespace {
+
+PackingReport pack_bellies_impl(std::vector<BellyShape>& bellies, const std::vector<PackingObstacle>& obstacles,
+                                const BellyPackingOptions& o, bool check_folds, const std::vector<char>& frozen) {
   const size_t nb = bellies.size(), ns = nb + obstacles.size();
   PackingReport report;
   std::vector<VecX> scale0(nb);
@@ -462,6 +504,7 @@ PackingReport pack_bellies(std::vector<BellyShape>& bellies, const std::vector<P
   solids.query.resize(ns);
   solids.box.resize(ns);
   solids.capsules.resize(nb);
+  solids.frozen = frozen;
   parallel_for(ns, [&](size_t i) {
     if (i < nb) {
       scale0[i] = bellies[i].scale;
@@ -510,6 +553,7 @@ PackingReport pack_bellies(std::vector<BellyShape>& bellies, const std::vector<P
       }
     std::fill(moved.begin(), moved.end(), 0);
     parallel_for(nb, [&](size_t i) {
+      if (!frozen.empty() && frozen[i]) return;
       BellyShape& b = bellies[i];
       const BellyHits& h = hits[i];
       if (!(h.push.array() > 0.0).any() && h.tip_move[0].squaredNorm() == 0.0 && h.tip_move[1].squaredNorm() == 0.0)
@@ -618,13 +662,41 @@ PackingReport pack_bellies(std::vector<BellyShape>& bellies, const std::vector<P
         free[v] = in_contact[v] ? 0 : 1;
         any_free = any_free || free[v];
       }
-      const double cap = o.max_growth * b.R;
+      VecX cap = VecX::Constant(nv, o.max_growth * b.R);
+      if (o.keep_sections_apart) {
+        // Each section stays behind the planes of the next kSectionWindow rings and ahead of those
+        // of the previous ones (with a tenth of the gap spare), so sections cannot cross each other
+        // where the belly bends.
+        const auto centre = [&](int k) -> Vec3 {
+          return b.centres.row(k == 0 ? 0 : (k == n + 1 ? static_cast<int>(nv) - 1 : 1 + (k - 1) * s)).transpose();
+        };
+        for (int k = 1; k <= n; ++k)
+          for (int j = 0; j < s; ++j) {
+            const int v = 1 + (k - 1) * s + j;
+            const double len = b.offsets.row(v).norm();
+            if (!(len > 0.0)) continue;
+            const Vec3 u = b.offsets.row(v).transpose() / len;
+            double r_max = std::numeric_limits<double>::infinity();
+            for (int m = std::max(k - kSectionWindow, 0); m <= std::min(k + kSectionWindow, n + 1); ++m) {
+              if (m == k) continue;
+              // Behind ring m's plane (m > k) or ahead of it (m < k): sign * (x - c_m) . t_m < 0.
+              const double sign = m > k ? 1.0 : -1.0;
+              const Vec3 t = b.line.frames[m].toRotationMatrix().col(0);
+              const double along = sign * u.dot(t);
+              if (along > 0.0) r_max = std::min(r_max, 0.9 * std::max(sign * (centre(m) - centre(k)).dot(t), 0.0) / along);
+            }
+            const double limit = std::max(r_max / len, lowest);
+            cap(v) = std::min(cap(v), limit);
+            b.scale(v) = std::min(b.scale(v), limit);
+          }
+      }
       if (!any_free || !restore_volume(b, free, cap)) {
         // Nothing left to grow (or the free part cannot hold the volume): every vertex grows,
         // contacts included; the overlap that leaves is reported at the end.
         all_in_contact[i] = 1;
         for (Eigen::Index v = 1; v + 1 < nv; ++v) free[v] = 1;
-        if (!restore_volume(b, free, cap) && !restore_volume(b, free, std::numeric_limits<double>::infinity()))
+        if (!restore_volume(b, free, cap) &&
+            !restore_volume(b, free, VecX::Constant(nv, std::numeric_limits<double>::infinity())))
           throw_numerical("belly packing: could not restore the volume", {.object = b.name});
       }
       moved[i] = 1;
@@ -635,6 +707,84 @@ PackingReport pack_bellies(std::vector<BellyShape>& bellies, const std::vector<P
     });
   }
   report.after = list_contacts(bellies, obstacles, hits);
+  if (check_folds) {
+    // Bellies packing made self-intersecting: clean unpacked, crossing faces now.
+    std::vector<FacePairs> crossing(nb);
+    parallel_for(nb, [&](size_t i) {
+      const BellyShape& b = bellies[i];
+      if (b.scale == scale0[i] && b.centres == centres0[i]) return;
+      Points3 V0(b.centres.rows(), 3);
+      for (Eigen::Index v = 0; v < V0.rows(); ++v) V0.row(v) = centres0[i].row(v) + scale0[i](v) * b.offsets.row(v);
+      if (!calc_self_intersections(TriMesh{V0, b.F}).empty()) return;
+      crossing[i] = calc_self_intersections(TriMesh{V[i], b.F});
+    });
+    for (size_t i = 0; i < nb; ++i) {
+      if (crossing[i].empty()) continue;
+      BellyShape& b = bellies[i];
+      PackingFold fold;
+      fold.name = b.name;
+      fold.crossing_pairs = static_cast<int>(crossing[i].size());
+      spdlog::debug("belly packing: {} has {} crossing face pairs (bands {})", b.name, crossing[i].size(),
+                    describe_faces(b, crossing[i]));
+      // Packed again alone, from its unpacked shape, against everything else held fixed.
+      std::vector<char> others_fixed(nb, 1);
+      others_fixed[i] = 0;
+      struct Gentler {
+        const char* what;
+        double slope;
+        bool shift;
+        bool apart;
+      };
+      const Gentler tries[] = {
+          {"a quarter of the ring shift slope", 0.25 * o.max_shift_slope, o.shift_rings, false},
+          {"no ring shifts", o.max_shift_slope, false, false},
+          {"a quarter of the ring shift slope and sections kept apart", 0.25 * o.max_shift_slope, o.shift_rings, true},
+          {"no ring shifts and sections kept apart", o.max_shift_slope, false, true}};
+      for (const Gentler& g : tries) {
+        BellyPackingOptions og = o;
+        og.max_shift_slope = g.slope;
+        og.shift_rings = g.shift;
+        og.keep_sections_apart = g.apart;
+        std::vector<BellyShape> all = bellies;
+        all[i].scale = scale0[i];
+        all[i].centres = centres0[i];
+        pack_bellies_impl(all, obstacles, og, false, others_fixed);
+        std::vector<BellyShape> one{std::move(all[i])};
+        const FacePairs left = calc_self_intersections(TriMesh{one[0].calc_vertices(), one[0].F});
+        spdlog::debug("belly packing: {} re-packed with {}: {} crossing face pairs (bands {})", b.name, g.what,
+                      left.size(), describe_faces(b, left));
+        if (left.empty()) {
+          b = std::move(one[0]);
+          fold.remedy = g.what;
+          break;
+        }
+      }
+      if (fold.remedy.empty()) {
+        b.scale = scale0[i];
+        b.centres = centres0[i];
+        fold.kept_unpacked = true;
+      }
+      V[i] = b.calc_vertices();
+      report.folds.push_back(std::move(fold));
+    }
+    if (!report.folds.empty()) {
+      report.after = calc_packing_contacts(bellies, obstacles);
+      if (!report.after.empty() && report.after.front().depth_m > o.tolerance_m) report.converged = false;
+      for (PackingFold& f : report.folds) {
+        for (const PackingContact& c : report.after)
+          if (c.a == f.name || c.b == f.name) f.overlap_m = std::max(f.overlap_m, c.depth_m);
+        if (f.kept_unpacked)
+          spdlog::warn("belly packing: {} keeps its unpacked shape: packing made its surface self-intersect ({} "
+                       "face pairs) and re-packing it alone with gentler settings did not clear that; it overlaps "
+                       "its neighbours by up to {:.2f} mm",
+                       f.name, f.crossing_pairs, 1e3 * f.overlap_m);
+        else
+          spdlog::info("belly packing: {} re-packed alone with {} (packing had made {} of its face pairs cross); "
+                       "deepest overlap {:.3f} mm",
+                       f.name, f.remedy, f.crossing_pairs, 1e3 * f.overlap_m);
+      }
+    }
+  }
   report.changed.assign(nb, false);
   report.max_radial_change_m.assign(nb, 0.0);
   report.mean_radial_change_m.assign(nb, 0.0);
@@ -649,7 +799,7 @@ PackingReport pack_bellies(std::vector<BellyShape>& bellies, const std::vector<P
     }
     report.mean_radial_change_m[i] = sum / static_cast<double>(b.scale.size());
   }
-  if (!report.converged) {
+  if (!report.converged && check_folds) {  // (the re-packing of one belly stays quiet)
     // The pairs left above the tolerance (deepest first, at most 10), and why their bellies could
     // not get out.
     std::string list;
@@ -675,5 +825,7 @@ PackingReport pack_bellies(std::vector<BellyShape>& bellies, const std::vector<P
   }
   return report;
 }
+
+}  // namespace
 
 }  // namespace fascicle

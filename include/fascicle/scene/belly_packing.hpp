@@ -57,6 +57,10 @@ struct BellyPackingOptions {
   bool shift_rings = true;           // sections may also move off the path (in their plane)
   double max_shift_fraction = 1.0;   // ... by at most this fraction of R
   double max_shift_slope = 0.5;      // ... changing by at most this much per unit length along the belly
+  // Cap each section vertex's radius so that it stays behind the next ring's plane and ahead of the
+  // previous ring's (neighbouring sections cannot cross in a bend). Off by default; pack_bellies
+  // turns it on when it re-packs a belly that the first packing made self-intersect.
+  bool keep_sections_apart = false;
 };
 
 // An obstacle at the rest pose, in the bellies' frame (ground).
@@ -70,6 +74,16 @@ struct PackingContact {
   double depth_m = 0.0;  // deepest vertex of a inside b (closest-point distance)
 };
 
+// A belly whose surface, clean (no self-intersecting faces) before packing, had crossing faces after
+// it: re-packed alone against its fixed neighbours with gentler settings, else kept unpacked.
+struct PackingFold {
+  std::string name;
+  int crossing_pairs = 0;        // self-intersecting face pairs after the first packing
+  std::string remedy;            // the re-packing settings that cleared it (empty: none did)
+  bool kept_unpacked = false;    // no re-packing cleared it: the belly keeps its unpacked shape
+  double overlap_m = 0.0;        // its deepest remaining overlap (either way) with any other solid
+};
+
 struct PackingReport {
   int iterations = 0;
   bool converged = true;
@@ -78,6 +92,7 @@ struct PackingReport {
   std::vector<double> max_radial_change_m;   // per belly: max |Δ radius| over its vertices
   std::vector<double> mean_radial_change_m;  // per belly: mean |Δ radius| over its vertices
   std::vector<bool> changed;                 // per belly: any vertex moved
+  std::vector<PackingFold> folds;            // bellies packing made self-intersecting (see pack_bellies)
 };
 
 // Deepest vertex of every belly inside every other belly and every obstacle (pairs with depth > 0).
@@ -95,6 +110,12 @@ std::vector<PackingContact> calc_packing_contacts(const std::vector<BellyShape>&
 // after max_iterations, then warns naming the pairs left, their depths and why (tip inside another
 // solid, squeezed, in contact all round). Never throws for lack of space. Deterministic: Jacobi
 // updates from one snapshot per iteration, the same result for any thread count.
+// Afterwards every changed belly whose unpacked surface has no self-intersecting faces
+// (calc_self_intersections) is checked again; one that now has some is packed again, alone, from
+// its unpacked shape against the other bellies (fixed) and the obstacles, first with a quarter of
+// the shift slope, then without ring shifts, then both again with keep_sections_apart; the first clean
+// result is kept, else the belly keeps its unpacked shape and a warning names it, why and its
+// remaining overlap. Such bellies are listed in PackingReport::folds.
 PackingReport pack_bellies(std::vector<BellyShape>& bellies, const std::vector<PackingObstacle>& obstacles,
                            const BellyPackingOptions& options = {});
 
