@@ -255,6 +255,38 @@ TEST(BellyPacking, Gait2392RightLegBelliesArePacked) {
   }
 }
 
+// A belly bent on a semicircle of radius 25 mm (R ≈ 23 mm: its inner side almost reaches the
+// bend's centre) pressed 1 cm into a box bone at the top of the arc. The joint packing pushes it
+// down and grows the rest, and the sections on the inner side of the bend cross each other; the
+// re-packing with a quarter of the shift slope or without shifts still folds, with the sections
+// kept apart it does not.
+TEST(BellyPacking, BentBellyThatPackingFoldsIsRepackedWithSectionsKeptApart) {
+  const double rad = 0.025;
+  Points3 P(41, 3);
+  for (int i = 0; i < 41; ++i) {
+    const double a = M_PI * i / 40.0;
+    P.row(i) << rad * std::cos(a), 0.0, rad * std::sin(a);
+  }
+  std::vector<BellyShape> bellies = {make_shape("bent", P, 8e-5)};
+  TriMesh box = make_box(Vec3(0.2, 0.2, 0.2));
+  box.V.col(2).array() += 0.2 + rad + bellies[0].R - 0.01;
+  const std::vector<PackingObstacle> bones = {{"box", box}};
+  ASSERT_TRUE(validate_mesh(get_mesh(bellies[0])).is_solid());
+  EXPECT_GT(calc_depth_inside(get_mesh(bellies[0]), box), 0.009);
+  const PackingReport report = pack_bellies(bellies, bones);
+  ASSERT_EQ(report.folds.size(), 1u);
+  EXPECT_EQ(report.folds[0].name, "bent");
+  EXPECT_GT(report.folds[0].crossing_pairs, 0);
+  EXPECT_FALSE(report.folds[0].kept_unpacked);
+  EXPECT_EQ(report.folds[0].remedy, "a quarter of the ring shift slope and sections kept apart");
+  EXPECT_TRUE(calc_self_intersections(get_mesh(bellies[0])).empty());
+  expect_solid_with_volume(bellies[0]);
+  EXPECT_LE(calc_depth_inside(get_mesh(bellies[0]), box), kTolerance);
+  EXPECT_LE(report.folds[0].overlap_m, kTolerance);
+  EXPECT_TRUE(report.converged);
+  EXPECT_EQ(count_fibre_points_outside(bellies[0], calc_belly_fibres(bellies[0]), kTolerance), 0);
+}
+
 // "pack_bellies" under "opensim_model": false gives the unpacked bellies, bit for bit; the
 // default packs them (soleus_r and the gastrocnemii overlap by 3 cm unpacked).
 TEST(BellyPacking, SceneOptionTurnsPackingOff) {
