@@ -256,8 +256,13 @@ SceneSpec make_scene_from_osim(const OsimModel& osim, const OsimSceneOptions& op
   for (size_t i = 0; i < shapes.size(); ++i) {
     MuscleSpec& m = spec.muscles[i];
     m.mesh = TriMesh{shapes[i].calc_vertices(), shapes[i].F};
+    // A belly packing folded and then kept unpacked takes the packed-belly fibre rule too: it keeps
+    // fibre points inside where the path bends sharply (flex_dig_r's circular fibres leave it by
+    // up to 0.7 mm).
     const bool changed = i < packed.changed.size() && packed.changed[i];
-    m.rest_fibres = changed ? calc_belly_fibres(shapes[i]) : calc_circular_fibres(shapes[i]);
+    const bool folded = std::any_of(packed.folds.begin(), packed.folds.end(),
+                                    [&](const PackingFold& f) { return f.name == shapes[i].name; });
+    m.rest_fibres = changed || folded ? calc_belly_fibres(shapes[i]) : calc_circular_fibres(shapes[i]);
   }
   if (packing_report) *packing_report = std::move(packed);
   if (skipped > 0)
