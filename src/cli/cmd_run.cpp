@@ -43,7 +43,7 @@ void run(const RunArgs& args) {
   if (!args.scene.empty()) {
     if (!args.muscles.empty() || args.specific_tension != 25.0 || args.no_pack_bellies)
       throw_usage("--muscles, --specific-tension and --no-pack-bellies apply to --model runs",
-                  {.suggestion = "in a scene file, set them under \"opensim_model\""});
+                  {.suggestion = "in a scene file, set \"muscles\", \"specific_tension\" or \"pack_bellies\" under \"opensim_model\""});
     spec = load_scene(args.scene, registry);
   } else {
     if (args.motion.empty())
