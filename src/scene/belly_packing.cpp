@@ -261,6 +261,32 @@ struct Solids {
   std::vector<char> frozen;  // per belly: held fixed (a belly re-packed alone against the others); empty: none
 };
 
+// The solids of a snapshot: a query of each belly at its current vertices (kept in V) and of each
+// obstacle, their boxes and the bellies' capsules; `owned` keeps the queries alive.
+Solids make_solids(const std::vector<BellyShape>& bellies, const std::vector<PackingObstacle>& obstacles,
+                   std::vector<Points3>& V, std::vector<std::unique_ptr<MeshQuery>>& owned) {
+  const size_t nb = bellies.size(), ns = nb + obstacles.size();
+  V.resize(nb);
+  owned.resize(ns);
+  Solids solids;
+  solids.query.resize(ns);
+  solids.box.resize(ns);
+  solids.capsules.resize(nb);
+  parallel_for(ns, [&](size_t i) {
+    if (i < nb) {
+      V[i] = bellies[i].calc_vertices();
+      owned[i] = std::make_unique<MeshQuery>(TriMesh{V[i], bellies[i].F});
+      solids.box[i] = calc_box(V[i]);
+      solids.capsules[i] = make_capsules(bellies[i]);
+    } else {
+      owned[i] = std::make_unique<MeshQuery>(obstacles[i - nb].mesh);
+      solids.box[i] = calc_box(obstacles[i - nb].mesh.V);
+    }
+    solids.query[i] = owned[i].get();
+  });
+  return solids;
+}
+
 // What one belly sees in a snapshot: per vertex the radial push (m) it needs, per solid the deepest
 // vertex inside it, and whether a tip (which cannot move radially) is inside something.
 struct RemotePush {
@@ -435,24 +461,9 @@ bool restore_volume(BellyShape& b, const std::vector<char>& free, const VecX& ca
 std::vector<PackingContact> calc_packing_contacts(const std::vector<BellyShape>& bellies,
                                                   const std::vector<PackingObstacle>& obstacles) {
   const size_t nb = bellies.size();
-  std::vector<Points3> V(nb);
-  std::vector<std::unique_ptr<MeshQuery>> owned(nb + obstacles.size());
-  Solids solids;
-  solids.query.resize(nb + obstacles.size());
-  solids.box.resize(nb + obstacles.size());
-  solids.capsules.resize(nb);
-  parallel_for(nb + obstacles.size(), [&](size_t i) {
-    if (i < nb) {
-      V[i] = bellies[i].calc_vertices();
-      owned[i] = std::make_unique<MeshQuery>(TriMesh{V[i], bellies[i].F});
-      solids.box[i] = calc_box(V[i]);
-      solids.capsules[i] = make_capsules(bellies[i]);
-    } else {
-      owned[i] = std::make_unique<MeshQuery>(obstacles[i - nb].mesh);
-      solids.box[i] = calc_box(obstacles[i - nb].mesh.V);
-    }
-    solids.query[i] = owned[i].get();
-  });
+  std::vector<Points3> V;
+  std::vector<std::unique_ptr<MeshQuery>> owned;
+  const Solids solids = make_solids(bellies, obstacles, V, owned);
   std::vector<BellyHits> hits(nb);
   parallel_for(nb, [&](size_t i) {
     hits[i] = calc_hits(bellies[i], V[i], static_cast<int>(i), static_cast<int>(nb), solids, {}, nullptr, nullptr);
@@ -494,31 +505,18 @@ namespace {
 
 PackingReport pack_bellies_impl(std::vector<BellyShape>& bellies, const std::vector<PackingObstacle>& obstacles,
                                 const BellyPackingOptions& o, bool check_folds, const std::vector<char>& frozen) {
-  const size_t nb = bellies.size(), ns = nb + obstacles.size();
+  const size_t nb = bellies.size();
   PackingReport report;
   std::vector<VecX> scale0(nb);
   std::vector<Points3> centres0(nb);
-  std::vector<Points3> V(nb);
-  std::vector<std::unique_ptr<MeshQuery>> owned(ns);
-  Solids solids;
-  solids.query.resize(ns);
-  solids.box.resize(ns);
-  solids.capsules.resize(nb);
+  for (size_t i = 0; i < nb; ++i) {
+    scale0[i] = bellies[i].scale;
+    centres0[i] = bellies[i].centres;
+  }
+  std::vector<Points3> V;
+  std::vector<std::unique_ptr<MeshQuery>> owned;
+  Solids solids = make_solids(bellies, obstacles, V, owned);
   solids.frozen = frozen;
-  parallel_for(ns, [&](size_t i) {
-    if (i < nb) {
-      scale0[i] = bellies[i].scale;
-      centres0[i] = bellies[i].centres;
-      V[i] = bellies[i].calc_vertices();
-      owned[i] = std::make_unique<MeshQuery>(TriMesh{V[i], bellies[i].F});
-      solids.box[i] = calc_box(V[i]);
-      solids.capsules[i] = make_capsules(bellies[i]);
-    } else {
-      owned[i] = std::make_unique<MeshQuery>(obstacles[i - nb].mesh);
-      solids.box[i] = calc_box(obstacles[i - nb].mesh.V);
-    }
-    solids.query[i] = owned[i].get();
-  });
   std::vector<std::vector<int>> contact(nb);  // per vertex: the last iteration that pushed it (-1: none)
   std::vector<std::vector<char>> squeezed(nb);
   for (size_t i = 0; i < nb; ++i) {
