@@ -691,6 +691,10 @@ namespace {
 struct LineSegments {
   std::vector<Vec3> start, direction, centre;
   std::vector<double> squared_length, radius;
+  // Runs of kGroup consecutive segments with a sphere holding all of their spheres.
+  static constexpr int kGroup = 8;
+  std::vector<Vec3> group_centre;
+  std::vector<double> group_radius;
   explicit LineSegments(const FramedLine& line) {
     for (int k = 0; k + 1 < line.num_samples(); ++k) {
       const Vec3 a = line.points.row(k).transpose();
@@ -700,6 +704,14 @@ struct LineSegments {
       centre.push_back(a + 0.5 * d);
       squared_length.push_back(d.squaredNorm());
       radius.push_back(0.5 * d.norm());
+    }
+    for (int g = 0; g < size(); g += kGroup) {
+      const int end = std::min(size(), g + kGroup);
+      const Vec3 c = 0.5 * (start[g] + start[end - 1] + direction[end - 1]);
+      double r = 0.0;
+      for (int k = g; k < end; ++k) r = std::max(r, (centre[k] - c).norm() + radius[k]);
+      group_centre.push_back(c);
+      group_radius.push_back(r * (1.0 + 1e-12));
     }
   }
   int size() const { return static_cast<int>(start.size()); }
@@ -715,12 +727,21 @@ struct LineSegments {
 // find_closest_line_parameter(line, p).s with the same result (the first segment, in order, of
 // the smallest squared distance): segment `hint` is tried first, and a segment is skipped when
 // its bounding sphere is farther than the best distance so far (it cannot be closer or equal).
+// Runs of segments whose common sphere is that far are skipped as a whole (the same test).
 double find_closest_line_fraction(const LineSegments& segments, const Vec3& p, int& hint) {
   const int n = segments.size();
   double best_u = 0.0;
   int best_k = std::clamp(hint, 0, n - 1);
   double best_d2 = segments.calc_squared_distance(best_k, p, best_u);
   for (int k = 0; k < n; ++k) {
+    if (k % LineSegments::kGroup == 0) {
+      const int g = k / LineSegments::kGroup;
+      const double reach = std::sqrt(best_d2) + segments.group_radius[g];
+      if ((segments.group_centre[g] - p).squaredNorm() > reach * reach * (1.0 + 1e-9)) {
+        k += LineSegments::kGroup - 1;
+        continue;
+      }
+    }
     if (k == hint) continue;
     const double reach = std::sqrt(best_d2) + segments.radius[k];
     // (1 + 1e-9): the bound is not decided by round-off
