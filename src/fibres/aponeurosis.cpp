@@ -158,6 +158,7 @@ Attachments find_aponeurosis_attachments(const TriMesh& muscle, const Aponeurosi
                 make_attachment_area(muscle, insertion, "insertion")};
   a.face_minus = std::move(face_minus);
   a.face_plus = std::move(face_plus);
+  a.thickness_direction = ex;
   if (bi) {
     // Central sheet at mid-thickness over [d, L], sampled on a grid and kept inside the muscle.
     const MeshQuery query(muscle);

@@ -201,10 +201,21 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
         vertex_across = vertex_crossing;
       }
     }
+    if (!options.transverse_direction.allFinite())
+      throw_usage("the transverse direction of the pennate field must be finite");
+    const bool fixed_plane = options.transverse_direction.norm() > 0.0;
+    const Vec3 plane_dir = fixed_plane ? Vec3(options.transverse_direction.normalized()) : Vec3::Zero();
+    // The transverse direction: grad(u) (or the faces' potential), or the given plane direction
+    // signed the way grad(u) points (towards the insertion; from either side of a central sheet).
+    const auto transverse = [&](const Vec3& g_across, const Vec3& g_u) -> Vec3 {
+      if (!fixed_plane) return g_across;
+      return g_u.dot(plane_dir) < 0.0 ? Vec3(-plane_dir) : plane_dir;
+    };
     const auto blend = [&](Points3& out, const Points3& across, const Points3& along,
-                           const Points3& crossing) {
+                           const Points3& crossing, const Points3& grad_u) {
       for (Eigen::Index i = 0; i < out.rows(); ++i) {
-        const Vec3 gl = along.row(i), gt = across.row(i);
+        const Vec3 gl = along.row(i);
+        const Vec3 gt = transverse(across.row(i), grad_u.row(i));
         double ca = ca_fixed, sa = sa_fixed;
         if (options.fibre_length_m > 0.0) {
           // Planimetric model with one fibre length L: a fibre crossing the local distance t
@@ -236,8 +247,9 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
         out.row(i) = d.transpose();
       }
     };
-    blend(field.tet_gradient, tet_across, tet_along, tet_crossing);
-    blend(field.vertex_gradient, vertex_across, vertex_along, vertex_crossing);
+    const Points3 tet_u = field.tet_gradient, vertex_u = field.vertex_gradient;
+    blend(field.tet_gradient, tet_across, tet_along, tet_crossing, tet_u);
+    blend(field.vertex_gradient, vertex_across, vertex_along, vertex_crossing, vertex_u);
   }
   return field;
 }

@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <array>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -91,6 +92,7 @@ TEST(CliFibres, AponeurosisAttachmentsGivePennateFibres) {
   const nlohmann::json j = nlohmann::json::parse(in);
   EXPECT_EQ(j["attachments"].get<std::string>(), "aponeurosis");
   EXPECT_EQ(j["architecture"].get<std::string>(), "bipennate");
+  EXPECT_EQ(j["pennation_plane"].get<std::string>(), "thickness");
   // Pennate fibres between the surface and the aponeurosis: Ward et al. 2009 give 68.3 mm for the
   // TA; end-to-end fibres of this belly are about 27 cm.
   EXPECT_GT(j["mean_fibre_length_m"].get<double>(), 0.0683 * 0.75);
@@ -168,5 +170,41 @@ TEST(CliFibres, PennationAgainstTheAponeurosesWithTheInsertionOnTheDeepSide) {
   // The aponeurosis reference needs aponeurosis areas: without them it is refused, not ignored.
   r = run_fibres_cli("--mesh " + mg + " --units mm --method harmonic --pennation-reference aponeurosis "
                      "--out " + (dir / "x.vtp").string());
+  EXPECT_EQ(r.code, 2) << r.out;
+}
+
+TEST(CliFibres, PennationPlaneIsSelectable) {
+  // Bolsterlee TA: the pennate field turning in the thickness plane (default) or in the plane of
+  // the aponeurosis potential's gradient; the fibres differ, both within Ward's +-25 %.
+  const auto dir = fascicle::test::scratch_dir("cli_fibres_plane");
+  const std::string apo = fascicle::test::data_path("bolsterlee_dti/TA_apo.stl").string();
+  double length[2] = {0.0, 0.0};
+  const char* planes[2] = {"thickness", "gradient"};
+  for (int i = 0; i < 2; ++i) {
+    const auto json = (dir / (std::string(planes[i]) + ".json")).string();
+    const FibresCliRun r = run_fibres_cli(
+        "--mesh " + ta_mesh() + " --units mm --attachments aponeurosis --architecture bipennate "
+        "--pennation-deg 9.6 --aponeurosis " + apo + " --method harmonic --pennation-plane " +
+        planes[i] + " --count 40 --resolution 9 --out " + (dir / "f.vtp").string() +
+        " --report " + json);
+    ASSERT_EQ(r.code, 0) << r.out;
+    std::ifstream in(json);
+    const nlohmann::json j = nlohmann::json::parse(in);
+    EXPECT_EQ(j["pennation_plane"].get<std::string>(), planes[i]);
+    length[i] = j["mean_fibre_length_m"].get<double>();
+    EXPECT_GT(length[i], 0.0683 * 0.75) << planes[i];
+    EXPECT_LT(length[i], 0.0683 * 1.25) << planes[i];
+  }
+  EXPECT_GT(std::abs(length[0] - length[1]), 1e-4);
+  // Refused where it does not apply (template method, no aponeurosis areas) and when unknown.
+  FibresCliRun r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --attachments aponeurosis "
+                                  "--pennation-deg 9.6 --pennation-plane thickness --out " +
+                                  (dir / "f.vtp").string());
+  EXPECT_EQ(r.code, 2) << r.out;
+  r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --method harmonic --pennation-plane "
+                     "thickness --out " + (dir / "f.vtp").string());
+  EXPECT_EQ(r.code, 2) << r.out;
+  r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --attachments aponeurosis --pennation-deg "
+                     "9.6 --method harmonic --pennation-plane sideways --out " + (dir / "f.vtp").string());
   EXPECT_EQ(r.code, 2) << r.out;
 }

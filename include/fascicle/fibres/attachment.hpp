@@ -35,6 +35,10 @@ struct Attachments {
   // parallel to both faces, the reference of HarmonicOptions::PennationReference::aponeurosis.
   // Empty otherwise.
   std::vector<int> face_minus, face_plus;
+  // Aponeurosis areas only (find_aponeurosis_attachments): the box's thickness direction x (unit,
+  // towards the insertion face for unipennate areas), e.g. for HarmonicOptions::
+  // transverse_direction. Zero otherwise.
+  Vec3 thickness_direction = Vec3::Zero();
 };
 
 // Builds an area from vertex indices (duplicates removed). Throws bad_input when the set is empty
