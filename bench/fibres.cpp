@@ -347,9 +347,12 @@ void BM_ValidateArchitecture(benchmark::State& state) {
   opt.resolution = 16;
   opt.pennation_rad = ao.pennation_rad;
   // Harmonic: third argument 0 = plain field on the aponeurosis areas, 1 = pennate field (angle to
-  // the line of action), 2 = pennate field with the angle to the aponeurosis level sets.
+  // the line of action), 2 = pennate field with the angle to the aponeurosis level sets; 3 and 4
+  // = 1 and 2 turning in the thickness plane (HarmonicOptions::transverse_direction).
   const bool pennate_field = method == FibreMethod::harmonic && state.range(2) >= 1;
-  const bool to_aponeurosis = method == FibreMethod::harmonic && state.range(2) == 2;
+  const bool to_aponeurosis =
+      method == FibreMethod::harmonic && (state.range(2) == 2 || state.range(2) == 4);
+  const bool thickness_plane = method == FibreMethod::harmonic && state.range(2) >= 3;
   if (pennate_field) opt.harmonic.pennation_rad = ao.pennation_rad;
   if (to_aponeurosis)
     opt.harmonic.pennation_reference = HarmonicOptions::PennationReference::aponeurosis;
@@ -361,6 +364,7 @@ void BM_ValidateArchitecture(benchmark::State& state) {
   }
   Attachments areas = find_aponeurosis_attachments(muscle, ao);
   if (c.aponeurosis) set_interior_aponeurosis(muscle, apo, areas);
+  if (thickness_plane) opt.harmonic.transverse_direction = areas.thickness_direction;
   // The template's box stays aligned with the muscle's ends (end regions); the harmonic method
   // takes the aponeurosis areas.
   const Attachments box_areas = find_end_attachments(muscle);
@@ -369,10 +373,11 @@ void BM_ValidateArchitecture(benchmark::State& state) {
   for (auto _ : state) d = decompose_muscle(muscle, used, opt);
   const FibreAnalysis a = analyse_fibres(muscle, used, d.fibres);
   report_validation(state, a, c.ward_m, c.tracts ? data / c.tracts : std::filesystem::path(), d.fibres);
-  const std::string variant = method == FibreMethod::template_map ? to_string(tmpl)
-                              : to_aponeurosis                     ? "pennate-field-to-aponeurosis"
-                              : pennate_field                      ? "pennate-field"
-                                                                   : "plain-field";
+  const std::string variant = (method == FibreMethod::template_map ? to_string(tmpl)
+                               : to_aponeurosis                     ? "pennate-field-to-aponeurosis"
+                               : pennate_field                      ? "pennate-field"
+                                                                    : "plain-field") +
+                              std::string(thickness_plane ? "-thickness-plane" : "");
   state.SetLabel(std::string(c.name) + " " + to_string(d.method_used) + " " + variant + " " +
                  to_string(c.architecture));
 }
@@ -381,7 +386,7 @@ BENCHMARK(BM_ValidateArchitecture)
     ->Iterations(1)
     ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ValidateArchitecture)
-    ->ArgsProduct({benchmark::CreateDenseRange(0, 7, 1), {1}, {0, 1, 2}})
+    ->ArgsProduct({benchmark::CreateDenseRange(0, 7, 1), {1}, {0, 1, 2, 3, 4}})
     ->Iterations(1)
     ->Unit(benchmark::kMillisecond);
 

@@ -205,10 +205,13 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
       throw_usage("the transverse direction of the pennate field must be finite");
     const bool fixed_plane = options.transverse_direction.norm() > 0.0;
     const Vec3 plane_dir = fixed_plane ? Vec3(options.transverse_direction.normalized()) : Vec3::Zero();
-    // The transverse direction: grad(u) (or the faces' potential), or the given plane direction
-    // signed the way grad(u) points (towards the insertion; from either side of a central sheet).
+    // The transverse direction: grad(u) (or the faces' potential), or the given plane direction:
+    // as given when both faces are known (unipennate areas: from the origin face towards the
+    // insertion face everywhere), else signed the way grad(u) points (towards a central sheet
+    // from either side).
     const auto transverse = [&](const Vec3& g_across, const Vec3& g_u) -> Vec3 {
       if (!fixed_plane) return g_across;
+      if (faces_known) return plane_dir;
       return g_u.dot(plane_dir) < 0.0 ? Vec3(-plane_dir) : plane_dir;
     };
     const auto blend = [&](Points3& out, const Points3& across, const Points3& along,

@@ -64,9 +64,9 @@ struct HarmonicOptions {
   double fibre_length_m = 0.0;
   // Nonzero (pennate fields): the plane in which the fibres turn away from the line of action.
   // The transverse direction (e_t of the line-of-action reference, e_n of the aponeurosis
-  // reference) is this direction made normal to e_l (resp. e_a), signed so that it points the way
-  // grad(u) does (towards the insertion aponeurosis; for a bipennate sheet, towards the sheet from
-  // either side). Typically the muscle's thickness direction (find_aponeurosis_attachments' box x,
+  // reference) is this direction made normal to e_l (resp. e_a): as given when the areas carry
+  // both faces (unipennate aponeurosis areas; give it towards the insertion face), else signed
+  // the way grad(u) points (towards a central sheet from either side). Typically the muscle's thickness direction (find_aponeurosis_attachments' box x,
   // `Attachments::thickness_direction`): DTI tracts of the medial gastrocnemius and tibialis
   // anterior turn within that plane, while grad(u) also turns sideways near the areas' edges
   // (docs/fibres.md, "DTI error map"). Zero: grad(u) (or the faces' potential) as before.
