@@ -380,3 +380,52 @@ INSTANTIATE_TEST_SUITE_P(
         WardCase{1, kHarmonic, FibreTemplate::parallel, true, kBi, 9.6, true, false, true},
         WardCase{4, kHarmonic, FibreTemplate::parallel, true, kUni, 20.5, true, false, true},
         WardCase{6, kHarmonic, FibreTemplate::parallel, true, kBi, 9.6, true, false, true}));
+
+// DTI (issue 6): the mean angle between the Bolsterlee tracts and the nearest fibre of the pennate
+// field, the angle from the MRI muscle's thickness and Ward's length (alpha = asin(t_f / L), not
+// fitted to the tracts; bench/fibres.cpp BM_DtiThicknessPennation / BM_DtiThicknessPlane). The
+// thickness plane (session 9) measured MG 13.37, TA 13.62 degrees; the gradient plane 14.15, 15.64.
+// The issue's target is 10 degrees: missed, so these bounds guard the best figures, not the target.
+class DtiDirections : public ::testing::TestWithParam<int> {};
+
+TEST_P(DtiDirections, ThicknessPlaneBeatsTheGradientPlane) {
+  const bool mg = GetParam() == 0;
+  const TriMesh muscle = read_mesh(test::data_path(mg ? "bolsterlee_dti/MG.stl" : "bolsterlee_dti/TA.stl"),
+                                   LengthUnit::millimetre);
+  AponeurosisOptions ao;
+  ao.architecture = mg ? Architecture::unipennate : Architecture::bipennate;
+  TriMesh apo;
+  if (mg) {
+    // The MG's insertion aponeurosis is the deep one: towards the subject's TA.
+    const TriMesh ta = read_mesh(test::data_path("bolsterlee_dti/TA.stl"), LengthUnit::millimetre);
+    ao.insertion_face_towards = Vec3(ta.V.colwise().mean()) - Vec3(muscle.V.colwise().mean());
+  } else {
+    apo = read_mesh(test::data_path("bolsterlee_dti/TA_apo.stl"), LengthUnit::millimetre);
+    ao.thickness_direction = calc_sheet_normal(apo);
+  }
+  const double t = calc_face_thickness(muscle, ao);
+  const double ward = mg ? 0.0510 : 0.0683;
+  ao.pennation_rad = std::asin((mg ? t : 0.5 * t) / ward);
+  Attachments areas = find_aponeurosis_attachments(muscle, ao);
+  if (!mg) set_interior_aponeurosis(muscle, apo, areas);
+  const FibreSet tracts =
+      read_tracts(test::data_path(mg ? "bolsterlee_dti/tracts_MG.txt" : "bolsterlee_dti/tracts_TA.txt"), 1e-3);
+  double mean_deg[2] = {0.0, 0.0};
+  for (int plane = 0; plane < 2; ++plane) {
+    DecomposeOptions opt;
+    opt.method = FibreMethod::harmonic;
+    opt.count = 100;
+    opt.resolution = 16;
+    opt.pennation_rad = ao.pennation_rad;
+    opt.harmonic.pennation_rad = ao.pennation_rad;
+    if (plane == 1) opt.harmonic.transverse_direction = areas.thickness_direction;
+    const Decomposition d = decompose_muscle(muscle, areas, opt);
+    mean_deg[plane] = compare_directions(d.fibres, tracts).mean_rad * 180 / M_PI;
+  }
+  std::printf("%s: alpha %.1f deg, DTI mean %.2f (gradient plane) / %.2f (thickness plane) deg\n",
+              mg ? "MG" : "TA", ao.pennation_rad * 180 / M_PI, mean_deg[0], mean_deg[1]);
+  EXPECT_LT(mean_deg[1], mg ? 13.6 : 13.9);
+  EXPECT_LT(mean_deg[1], mean_deg[0] - 0.5);
+}
+
+INSTANTIATE_TEST_SUITE_P(Fibres, DtiDirections, ::testing::Values(0, 1));
