@@ -67,8 +67,8 @@ struct Bin {
   void print(const std::string& label) const {
     if (n == 0) return;
     const double k = deg / n;
-    fmt::print("  {:<12} n={:5d} error {:5.1f} | beta: tract {:5.1f} fibre {:5.1f} | |dphi| {:5.1f} | "
-               "error with the tract's beta {:5.1f}, with the tract's phi {:5.1f}\n",
+    fmt::print("  {:<12} n={:5d} error {:5.1f} | beta: tract {:5.1f} fibre {:5.1f} | "
+               "|dphi| {:5.1f} | error with the tract's beta {:5.1f}, with the tract's phi {:5.1f}\n",
                label, n, err * k, tract_beta * k, fibre_beta * k, abs_dphi * k, err_tract_beta * k,
                err_tract_phi * k);
   }
@@ -174,11 +174,13 @@ void print_error_map(const Case& c, const Setup& s, bool thickness_plane) {
       const Vec3 et = (gu - gu.dot(el) * el).normalized(), eb = el.cross(et);
       if (tv.dot(el) < 0) tv = -tv;
       if (fv.dot(el) < 0) fv = -fv;
-      const double bt = std::acos(std::min(1.0, tv.dot(el))), bf = std::acos(std::min(1.0, fv.dot(el)));
+      const double bt = std::acos(std::min(1.0, tv.dot(el)));
+      const double bf = std::acos(std::min(1.0, fv.dot(el)));
       const double pt = std::atan2(tv.dot(eb), tv.dot(et)), pf = std::atan2(fv.dot(eb), fv.dot(et));
       const double dphi = std::remainder(pt - pf, 2 * M_PI);
       const auto direction = [&](double beta, double phi) {
-        return Vec3(std::cos(beta) * el + std::sin(beta) * (std::cos(phi) * et + std::sin(phi) * eb));
+        return Vec3(std::cos(beta) * el +
+                    std::sin(beta) * (std::cos(phi) * et + std::sin(phi) * eb));
       };
       const double e = calc_line_angle(tv, fv);
       const double e_beta = calc_line_angle(tv, direction(bt, pf));
@@ -188,7 +190,8 @@ void print_error_map(const Case& c, const Setup& s, bool thickness_plane) {
       const int tenth = std::clamp(static_cast<int>((z_hi - p.dot(ez)) / extent * 10), 0, 9);
       const double dp = -query.calc_signed_distances(p.transpose())(0);
       const int di = dp < 2e-3 ? 0 : dp < 4e-3 ? 1 : dp < 7e-3 ? 2 : 3;
-      for (Bin* b : {&axial[tenth], &depth[di], &potential[std::clamp(static_cast<int>(u * 5), 0, 4)], &all}) {
+      const int ui = std::clamp(static_cast<int>(u * 5), 0, 4);
+      for (Bin* b : {&axial[tenth], &depth[di], &potential[ui], &all}) {
         ++b->n;
         b->err += e;
         b->tract_beta += bt;
@@ -205,14 +208,15 @@ void print_error_map(const Case& c, const Setup& s, bool thickness_plane) {
   for (int b = 0; b < 10; ++b) axial[b].print(fmt::format("tenth {}", b + 1));
   const char* depth_label[] = {"depth < 2mm", "depth 2-4mm", "depth 4-7mm", "depth > 7mm"};
   for (int b = 0; b < 4; ++b) depth[b].print(depth_label[b]);
-  for (int b = 0; b < 5; ++b) potential[b].print(fmt::format("u {:.1f}-{:.1f}", 0.2 * b, 0.2 * b + 0.2));
+  for (int b = 0; b < 5; ++b)
+    potential[b].print(fmt::format("u {:.1f}-{:.1f}", 0.2 * b, 0.2 * b + 0.2));
   fmt::print("  tracts' mean normal part (sin of the angle to e_l) per tenth, box x / y:\n");
   for (int b = 0; b < 10; ++b)
     for (int side = 0; side < 2; ++side)
       if (side_n[b][side] > 0) {
         const Vec3 m = side_sum[b][side] / side_n[b][side];
-        fmt::print("  tenth {:2d}, grad u towards {}x: n={:5d} |m|={:.3f} x={:+.3f} y={:+.3f}\n", b + 1,
-                   side == 0 ? "+" : "-", side_n[b][side], m.norm(), m.dot(ex), m.dot(ey));
+        fmt::print("  tenth {:2d}, grad u towards {}x: n={:5d} |m|={:.3f} x={:+.3f} y={:+.3f}\n",
+                   b + 1, side == 0 ? "+" : "-", side_n[b][side], m.norm(), m.dot(ex), m.dot(ey));
       }
 }
 

@@ -32,7 +32,7 @@ struct FibresArgs {
   double pennation_deg = 0.0;       // 0: fixed template rise
   std::string rise_crossing = "mean-thickness";  // or "mapped-crossing"
   std::string pennation_reference = "line";       // or "aponeurosis"
-  std::string pennation_plane;                    // "" (thickness where it applies), "thickness", "gradient"
+  std::string pennation_plane;  // "" or "thickness" (the thickness plane), or "gradient"
   std::string insertion_side;                     // mesh on the insertion (deep) side
   std::string aponeurosis;          // interior insertion aponeurosis mesh
 };
@@ -128,7 +128,8 @@ void run_fibres(const FibresArgs& a) {
       opt.harmonic.pennation_rad = opt.pennation_rad;
       // The fibres turn in the plane of the box's thickness direction unless asked otherwise
       // (session 9: DTI MG 14.2 -> 13.4 deg, TA 15.6 -> 13.6 deg; docs/fibres.md).
-      if (a.pennation_plane != "gradient") opt.harmonic.transverse_direction = areas.thickness_direction;
+      if (a.pennation_plane != "gradient")
+        opt.harmonic.transverse_direction = areas.thickness_direction;
     }
   } else if (!a.origin.empty() || !a.insertion.empty()) {
     if (a.origin.empty() || a.insertion.empty())

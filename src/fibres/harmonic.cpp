@@ -204,7 +204,8 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
     if (!options.transverse_direction.allFinite())
       throw_usage("the transverse direction of the pennate field must be finite");
     const bool fixed_plane = options.transverse_direction.norm() > 0.0;
-    const Vec3 plane_dir = fixed_plane ? Vec3(options.transverse_direction.normalized()) : Vec3::Zero();
+    const Vec3 plane_dir =
+        fixed_plane ? Vec3(options.transverse_direction.normalized()) : Vec3::Zero();
     // The transverse direction: grad(u) (or the faces' potential), or the given plane direction:
     // as given when both faces are known (unipennate areas: from the origin face towards the
     // insertion face everywhere), else signed the way grad(u) points (towards a central sheet

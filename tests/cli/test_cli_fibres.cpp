@@ -205,6 +205,7 @@ TEST(CliFibres, PennationPlaneIsSelectable) {
                      "thickness --out " + (dir / "f.vtp").string());
   EXPECT_EQ(r.code, 2) << r.out;
   r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --attachments aponeurosis --pennation-deg "
-                     "9.6 --method harmonic --pennation-plane sideways --out " + (dir / "f.vtp").string());
+                     "9.6 --method harmonic --pennation-plane sideways --out " +
+                     (dir / "f.vtp").string());
   EXPECT_EQ(r.code, 2) << r.out;
 }

@@ -209,7 +209,8 @@ TEST(PennateHarmonicField, ThicknessPlaneKeepsFibresInTheirXZPlane) {
       dy.push_back(std::abs(P(P.rows() - 1, 1) - P(0, 1)));
     }
     drift[plane] = median(dy);
-    std::printf("%s plane: median mid-fibre angle %.2f deg, median y drift %.3f mm, largest %.2f mm\n",
+    std::printf("%s plane: median mid-fibre angle %.2f deg, median y drift %.3f mm, "
+                "largest %.2f mm\n",
                 plane ? "thickness" : "gradient", median(angles) * 180 / M_PI, drift[plane] * 1e3,
                 *std::max_element(dy.begin(), dy.end()) * 1e3);
     EXPECT_NEAR(median(angles), alpha, 2.0 * M_PI / 180);
@@ -222,12 +223,13 @@ TEST(PennateHarmonicField, ThicknessPlaneKeepsFibresInTheirXZPlane) {
 }
 
 TEST(PennateHarmonicField, ThicknessPlaneTurnsTowardsTheSheetFromEitherSide) {
-  const Decomposition d = decompose_slab_pennate(
-      Architecture::bipennate, 20.0 * M_PI / 180, HarmonicOptions::PennationReference::line_of_action,
-      0.0, true);
+  const Decomposition d =
+      decompose_slab_pennate(Architecture::bipennate, 20.0 * M_PI / 180,
+                             HarmonicOptions::PennationReference::line_of_action, 0.0, true);
   ASSERT_GE(d.fibres.size(), 55u);
   int towards = 0;
-  for (const Points3& P : d.fibres.fibres) towards += std::abs(P(P.rows() - 1, 0)) < std::abs(P(0, 0));
+  for (const Points3& P : d.fibres.fibres)
+    towards += std::abs(P(P.rows() - 1, 0)) < std::abs(P(0, 0));
   EXPECT_GE(towards, static_cast<int>(d.fibres.size()) - 2);
   // A non-finite direction is a usage error.
   AponeurosisOptions o;

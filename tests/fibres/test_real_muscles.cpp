@@ -334,8 +334,8 @@ TEST_P(WardFibreLength, MeanFibreLengthWithin25Percent) {
     for (const Vec3& q : fibre_pts) best = std::min(best, (q - p).squaredNorm());
     covered += std::sqrt(best) <= radius;
   }
-  std::printf("    smooth %.0f%%, coverage %.1f%% within %.1f mm\n", 100.0 * smooth / d.fibres.size(),
-              100.0 * covered / inside, radius * 1e3);
+  std::printf("    smooth %.0f%%, coverage %.1f%% within %.1f mm\n",
+              100.0 * smooth / d.fibres.size(), 100.0 * covered / inside, radius * 1e3);
   EXPECT_GE(smooth, 0.9 * static_cast<double>(d.fibres.size())) << describe(w);
   // 95 % is met by the line-of-action fields except on the gluteus medius (0.78-0.82); the
   // aponeurosis reference reaches 0.87-0.88 on the TAs (session 9, docs/fibres.md): floors.
@@ -390,8 +390,8 @@ class DtiDirections : public ::testing::TestWithParam<int> {};
 
 TEST_P(DtiDirections, ThicknessPlaneBeatsTheGradientPlane) {
   const bool mg = GetParam() == 0;
-  const TriMesh muscle = read_mesh(test::data_path(mg ? "bolsterlee_dti/MG.stl" : "bolsterlee_dti/TA.stl"),
-                                   LengthUnit::millimetre);
+  const TriMesh muscle = read_mesh(
+      test::data_path(mg ? "bolsterlee_dti/MG.stl" : "bolsterlee_dti/TA.stl"), LengthUnit::millimetre);
   AponeurosisOptions ao;
   ao.architecture = mg ? Architecture::unipennate : Architecture::bipennate;
   TriMesh apo;
@@ -408,8 +408,8 @@ TEST_P(DtiDirections, ThicknessPlaneBeatsTheGradientPlane) {
   ao.pennation_rad = std::asin((mg ? t : 0.5 * t) / ward);
   Attachments areas = find_aponeurosis_attachments(muscle, ao);
   if (!mg) set_interior_aponeurosis(muscle, apo, areas);
-  const FibreSet tracts =
-      read_tracts(test::data_path(mg ? "bolsterlee_dti/tracts_MG.txt" : "bolsterlee_dti/tracts_TA.txt"), 1e-3);
+  const FibreSet tracts = read_tracts(
+      test::data_path(mg ? "bolsterlee_dti/tracts_MG.txt" : "bolsterlee_dti/tracts_TA.txt"), 1e-3);
   double mean_deg[2] = {0.0, 0.0};
   for (int plane = 0; plane < 2; ++plane) {
     DecomposeOptions opt;

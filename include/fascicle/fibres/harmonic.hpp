@@ -66,10 +66,11 @@ struct HarmonicOptions {
   // The transverse direction (e_t of the line-of-action reference, e_n of the aponeurosis
   // reference) is this direction made normal to e_l (resp. e_a): as given when the areas carry
   // both faces (unipennate aponeurosis areas; give it towards the insertion face), else signed
-  // the way grad(u) points (towards a central sheet from either side). Typically the muscle's thickness direction (find_aponeurosis_attachments' box x,
-  // `Attachments::thickness_direction`): DTI tracts of the medial gastrocnemius and tibialis
-  // anterior turn within that plane, while grad(u) also turns sideways near the areas' edges
-  // (docs/fibres.md, "DTI error map"). Zero: grad(u) (or the faces' potential) as before.
+  // the way grad(u) points (towards a central sheet from either side). Typically the muscle's
+  // thickness direction (find_aponeurosis_attachments' box x, Attachments::thickness_direction):
+  // the DTI tracts of the medial gastrocnemius and tibialis anterior turn within that plane,
+  // while grad(u) also turns sideways near the areas' edges (docs/fibres.md, "Session 9").
+  // Zero: grad(u) (or the faces' potential), as before.
   Vec3 transverse_direction = Vec3::Zero();
 };
 
