@@ -6,7 +6,7 @@
 // angle to e_l, phi the azimuth of its normal part about e_l from e_t. Two counterfactual errors
 // separate the causes: the fibre with the tract's beta (its plane kept), and with the tract's phi
 // (its beta kept). Also the mean normal part of the tracts per tenth in the box frame (x the
-// thickness direction). Not a benchmark: `build/bin/bench_dti_error_map` prints tables for the
+// thickness direction). Not a benchmark: `build/bin/diag_dti_error_map` prints tables for the
 // gradient and the thickness plane (HarmonicOptions::transverse_direction).
 #include "fascicle/fibres/analysis.hpp"
 #include "fascicle/fibres/decompose.hpp"
@@ -14,7 +14,7 @@
 #include "fascicle/geometry/mesh_query.hpp"
 #include "fascicle/io/mesh_io.hpp"
 
-#include "../src/fibres/point_index.hpp"
+#include "../../src/fibres/point_index.hpp"
 
 #include <fmt/format.h>
 
