@@ -129,9 +129,6 @@ struct FibresFirstOptions {
   int surface_anchor_count = 6;
   double surface_stiffness = 400.0;
   double surface_rest_overlap_resolved_m = 5e-3;
-  // Skin of the surface-vertex candidate list (a Verlet list like pair_list_skin_m): rebuilt
-  // once some surface vertex has moved more than half of it.
-  double surface_list_skin_m = 2e-3;
   double contact_weight = 100.0;  // contact spring = this x along_stiffness
   int max_contact_rounds = 4;     // solve -> detect new contacts -> solve rounds per frame
   // Local/global iterations (projective dynamics) per contact round; stop when the largest
