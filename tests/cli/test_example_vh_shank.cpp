@@ -706,7 +706,7 @@ TEST(ExampleVhShank, RunsAFewFramesWithVolumeAndContactInvariants) {
 // (deepest display vertex inside another muscle's closed surface, winding numbers) stays within
 // 0.5 mm over the first 40 frames of the example's sweep (about 1 degree per frame), with the
 // volume within 0.5 % and no bone penetration beyond 0.5 mm. (Without the options the same frames
-// overlap by about 4-8 mm, docs/representations.md.)
+// overlap by 3.4-7.7 mm at every frame, docs/representations.md.)
 TEST(ExampleVhShank, FibresFirstSurfaceSeparationKeepsOverlapWithinHalfAMillimetre) {
   const fs::path scene = example_dir() / "scene.json";
   ASSERT_TRUE(fs::exists(scene));
