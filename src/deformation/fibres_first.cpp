@@ -1451,10 +1451,6 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
       partners[a].push_back(b);
       partners[b].push_back(a);
     }
-    for (const SurfaceContact& c : ws.surfaces.contacts) {
-      partners[c.a].push_back(c.b);
-      partners[c.b].push_back(c.a);
-    }
     for (auto& list : partners) {
       std::sort(list.begin(), list.end());
       list.erase(std::unique(list.begin(), list.end()), list.end());
@@ -1487,9 +1483,28 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
       }
       std::vector<char> moving(nm, 0);
       for (int mi = 0; mi < nm; ++mi) moving[mi] = active[mi] && steps[mi] >= o.step_tolerance;
+      // surface contacts: a muscle rests on unless the other side's particles of one of its
+      // contacts moved by the tolerance in this iteration (its contact targets changed); a
+      // moving partner elsewhere on its surface does not wake it (the particle pairs keep the
+      // coarser rule: any moving partner)
+      std::vector<char> pushed(nm, 0);
+      if (ws.surfaces.enabled) {
+        auto moved = [&](int p, int mi) {
+          return (x.row(p) - snapshot.row(p)).norm() >= o.step_tolerance * model.muscles[mi].mean_spring_length_m;
+        };
+        for (const SurfaceContact& c : ws.surfaces.contacts) {
+          const FibreBundle& ma = model.muscles[c.a];
+          const FibreBundle& mb = model.muscles[c.b];
+          if (ma.num_surface_particles == 0 || mb.num_surface_particles == 0) continue;
+          if (!pushed[c.b] && moving[c.a] && moved(ma.surface_weight_particle[c.v], c.b)) pushed[c.b] = 1;
+          if (!pushed[c.a] && moving[c.b])
+            for (int i = 0; i < 3; ++i)
+              if (moved(mb.surface_weight_particle[mb.surface_triangles(c.triangle, i)], c.a)) pushed[c.a] = 1;
+        }
+      }
       bool any = false;
       for (int mi = 0; mi < nm; ++mi) {
-        active[mi] = moving[mi];
+        active[mi] = moving[mi] || pushed[mi];
         for (int other : partners[mi]) active[mi] = active[mi] || moving[other];
         any = any || active[mi];
       }
