@@ -622,15 +622,26 @@ double calc_contact_gap(const FibresFirstModel& model, const SurfaceContact& c, 
 }
 
 // Signed gap of p from a closed, outward surface (positive outside): the closest point, and the
-// side of its face (MeshQuery's ray vote on an edge or a vertex), the bones' rule. (The sign of
-// the closest feature's angle-weighted pseudonormal, Baerentzen and Aanaes 2005, was tried in
-// place of the ray vote with surface particles: on the VH shank the solve then broke down at
-// frame 61, a vertex 24 mm inside another surface, and the volume hold failed at frame 65; not
-// investigated further, the deformed lofts may fold.)
+// side of its face (MeshQuery's ray vote on an edge or a vertex), the bones' rule. An "inside"
+// answer deeper than 1 mm is confirmed by the ray vote (the winding number; the scene's overlap
+// measure uses winding numbers too): on a folded surface the closest face can face the wrong
+// way, and the face rule then called vertices inside up to 124 mm away from the VH medial
+// gastrocnemius; such a vertex became a contact with a push of that size (gait2392 sar_r lost
+// 111 % of its volume in one push at frame 1; with the confirmation gait2392 runs to frame 21 and
+// the demo leg at 25 Hz to frame 39, instead of frames 1 and 4). Shallower answers keep the face
+// rule (soleus at VH frames 84-87: 0.14-0.17 mm inside by the face rule, outside by the winding
+// number), so contacts at the margin cost no ray votes; confirming every inside answer gave the
+// same VH results but made gait2392 fail at frame 16. (The sign of the closest feature's
+// angle-weighted pseudonormal, Baerentzen and Aanaes 2005, was tried in place of the ray vote
+// with surface particles: on the VH shank the solve then broke down at frame 61, a vertex 24 mm
+// inside another surface, and the volume hold failed at frame 65.)
 double calc_signed_gap(const MeshQuery& surface, const Vec3& p, ClosestPoint& cp) {
+  constexpr double confirm_beyond_m = 1e-3;
   cp = surface.calc_closest_point(p);
   if (cp.triangle < 0) return std::numeric_limits<double>::infinity();
-  return detail::calc_is_behind_bone(surface, p, cp) ? -cp.distance : cp.distance;
+  if (!detail::calc_is_behind_bone(surface, p, cp)) return cp.distance;
+  if (cp.distance > confirm_beyond_m && !surface.calc_is_inside(p)) return cp.distance;
+  return -cp.distance;
 }
 
 Eigen::AlignedBox3d calc_box(const Points3& V, double pad) {
