@@ -123,7 +123,7 @@ void check_options(const FibresFirstOptions& o) {
       !positive(o.default_time_step_s) || !(o.damping_per_s >= 0.0) || !(o.bone_margin_m >= 0.0) ||
       !(o.muscle_margin_m >= 0.0) || !(o.muscle_contact_band >= 0.0) || !(o.pair_list_skin_m >= 0.0) || !(o.end_attachment_distance_m >= 0.0) ||
       !(o.bone_attachment_distance_m >= 0.0) || !(std::abs(o.blend_a) <= 1.0) ||
-      !(o.surface_margin_m >= 0.0) || !(o.surface_list_skin_m >= 0.0) ||
+      !(o.surface_margin_m >= 0.0) ||
       !(o.surface_rest_overlap_resolved_m >= 0.0) || !positive(o.surface_stiffness) ||
       o.surface_anchor_count < 1)
     throw_bad_input("invalid fibres-first options (density, weights, tolerances and time step must be "

@@ -109,10 +109,13 @@ struct FibresFirstOptions {
   // particles; docs/representations.md, "Display-surface separation"). Pairs of muscles whose
   // surfaces overlap at rest by at most surface_rest_overlap_resolved_m are separated fully from
   // the first frame; deeper pairs (generated volumes) keep every vertex's rest depth and only
-  // growth beyond it is held. EXPERIMENTAL, off by default: it separates two bundles (test) and
-  // the VH shank's rest pose (3.9 -> 0.4 mm), but on the posed VH frames the projection does not
-  // converge (overlaps of 3-4 mm remain where carried belly ends converge at the ankle) and the
-  // volume hold then fails (> 0.5 %) within a few frames.
+  // growth beyond it is held. Contacts that still touch at the end of a frame stay active in the
+  // next one, and bone contacts are released on the converged iterate (docs/representations.md).
+  // EXPERIMENTAL, off by default: with the loft carried by weights it separates two bundles
+  // (test) and the VH shank's rest pose (3.9 -> 0.4 mm), but on the posed VH frames the
+  // projection does not converge (overlaps of 3-4 mm remain where carried belly ends converge at
+  // the ankle) and the volume hold then fails (> 0.5 %) within a few frames; use it with
+  // surface_particles.
   bool separate_surfaces = false;
   double surface_margin_m = 2e-4;
   // Surface particles (muscles with a loft display surface): the loft's vertices become particles
@@ -122,16 +125,15 @@ struct FibresFirstOptions {
   // then these particles themselves (weights 1): its volume is held directly, and with
   // separate_surfaces its contacts are particle targets of the global step, like bone contacts (a
   // vertex against the opposite face's three particles with their barycentric weights); see
-  // docs/representations.md, "Surface particles". Off by default: on the VH shank it brings the
-  // surface overlap from 8.3 to 1.1 mm but costs about 6x the time per frame, and on gait2392's
-  // generated bellies the separation fails the volume hold (measured 2026-11-24).
+  // docs/representations.md, "Surface particles". Off by default: with separate_surfaces it
+  // brings the VH shank's scene overlap from 8.3 mm to 0 at every frame (volume <= 2.7e-4,
+  // penetration 0) but costs about 17 ms CPU per frame against 8 ms (session 9, 2026-11-25),
+  // and on gait2392's generated bellies (frame 21) and on the synthetic leg of scene/demo.hpp
+  // (frame 39 at 25 Hz) the separation fails the volume hold.
   bool surface_particles = false;
   int surface_anchor_count = 6;
   double surface_stiffness = 400.0;
   double surface_rest_overlap_resolved_m = 5e-3;
-  // Skin of the surface-vertex candidate list (a Verlet list like pair_list_skin_m): rebuilt
-  // once some surface vertex has moved more than half of it.
-  double surface_list_skin_m = 2e-3;
   double contact_weight = 100.0;  // contact spring = this x along_stiffness
   int max_contact_rounds = 4;     // solve -> detect new contacts -> solve rounds per frame
   // Local/global iterations (projective dynamics) per contact round; stop when the largest
