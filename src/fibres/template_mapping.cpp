@@ -240,6 +240,7 @@ AxialRange calc_axial_range(const TriMesh& muscle, const AttachmentArea& area, c
 }  // namespace
 
 struct TemplateMapper::Slices {
+  std::vector<double> section_area;  // area of each slice's contour (m^2)
   int samples = 0;              // points per contour (multiple of 4)
   Poly2 square;                 // #samples x 2 unit-square boundary
   std::vector<Points3> contour;  // per slice: #samples x 3 points matching `square`
@@ -298,8 +299,8 @@ TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
   // exceeds side_area_extent of the muscle's).
   const AxialRange range_o = calc_axial_range(muscle, areas.origin, ez);
   const AxialRange range_i = calc_axial_range(muscle, areas.insertion, ez);
-  side_areas_ = range_o.hi - range_o.lo > options.side_area_extent ||
-                range_i.hi - range_i.lo > options.side_area_extent;
+  origin_side_ = range_o.hi - range_o.lo > options.side_area_extent;
+  side_areas_ = origin_side_ || range_i.hi - range_i.lo > options.side_area_extent;
   switch (options.slicing) {
     case TemplateMapOptions::Slicing::planes: field_slicing_ = false; break;
     case TemplateMapOptions::Slicing::field: field_slicing_ = true; break;
@@ -457,6 +458,7 @@ TemplateMapper::TemplateMapper(const TriMesh& muscle, const Attachments& areas,
     for (Eigen::Index i = 0, j = xy.rows() - 1; i < xy.rows(); j = i++)
       area2 += xy(j, 0) * xy(i, 1) - xy(i, 0) * xy(j, 1);
     mean_section_area_ += 0.5 * std::abs(area2) / K;
+    slices_->section_area.push_back(0.5 * std::abs(area2));
   }
   {
     // Mean mapped area of the start square's cells (two triangles per cell), over the slices.
@@ -607,6 +609,78 @@ Points3 select_area_targets(const TriMesh& muscle, const AttachmentArea& area, i
   return out;
 }
 
+// Targets on an origin side area with a fibre budget along the axis (TemplateMapOptions::
+// side_budget): a fibre re-routed onto the strip crosses only the sections beyond its target, so
+// the number of targets up to each slice interval b (counted from slice 0, the origin area's far
+// end) is count x (share x R_b + (1 - share) x S_b), R_b the running maximum of the section area
+// over the intervals the area reaches up to b, divided by its maximum there, and S_b the fraction
+// of the area's samples up to b. Within these quotas the targets are chosen by farthest-point
+// order among factor x count stratified samples, as select_area_targets (quota beyond an
+// interval's samples passes on to the next, and what is left at the near end back to the
+// previous ones).
+Points3 select_budget_targets(const TriMesh& muscle, const AttachmentArea& area, int count,
+                              int factor, const Vec3& axis, double level0, double spacing,
+                              const std::vector<double>& section, double share) {
+  const Points3 C = calc_area_samples(muscle, area, std::max(factor, 1) * count);
+  const Eigen::Index m = C.rows();
+  const int nb = static_cast<int>(section.size()) - 1;
+  if (m == 0 || nb < 1) return Points3(0, 3);
+  std::vector<int> bin(static_cast<std::size_t>(m));
+  std::vector<int> have(static_cast<std::size_t>(nb), 0);
+  for (Eigen::Index j = 0; j < m; ++j) {
+    const double b = std::floor((Vec3(C.row(j)).dot(axis) - level0) / spacing);
+    bin[j] = static_cast<int>(std::clamp(b, 0.0, nb - 1.0));
+    ++have[bin[j]];
+  }
+  double area_max = 0.0;
+  for (int b = 0; b < nb; ++b)
+    if (have[b] > 0) area_max = std::max(area_max, 0.5 * (section[b] + section[b + 1]));
+  std::vector<int> quota(static_cast<std::size_t>(nb), 0);
+  double running = 0.0;
+  int samples_so_far = 0, given = 0, carry = 0;
+  for (int b = 0; b < nb; ++b) {
+    if (have[b] > 0) running = std::max(running, 0.5 * (section[b] + section[b + 1]));
+    samples_so_far += have[b];
+    const double fraction = share * (area_max > 0.0 ? running / area_max : 1.0) +
+                            (1.0 - share) * samples_so_far / static_cast<double>(m);
+    const int wanted = static_cast<int>(std::lround(count * std::min(1.0, fraction)));
+    const int q = std::max(0, wanted - given) + carry;
+    given = std::max(given, wanted);
+    quota[b] = std::min(q, have[b]);
+    carry = q - quota[b];
+  }
+  for (int b = nb - 1; b >= 0 && carry > 0; --b) {  // left over at the near end: back-fill
+    const int extra = std::min(carry, have[b] - quota[b]);
+    quota[b] += extra;
+    carry -= extra;
+  }
+  Points3 out(std::min<Eigen::Index>(count, m), 3);
+  std::vector<double> d2(static_cast<std::size_t>(m), std::numeric_limits<double>::infinity());
+  std::vector<char> taken(static_cast<std::size_t>(m), 0);
+  Eigen::Index pick = -1;
+  double nearest = std::numeric_limits<double>::infinity();
+  for (Eigen::Index j = 0; j < m; ++j)
+    if (const double d = (Vec3(C.row(j)) - area.centroid).squaredNorm();
+        quota[bin[j]] > 0 && d < nearest) {
+      nearest = d;
+      pick = j;
+    }
+  Eigen::Index n = 0;
+  while (pick >= 0 && n < out.rows()) {
+    const Vec3 p = C.row(pick);
+    out.row(n++) = p.transpose();
+    taken[pick] = 1;
+    --quota[bin[pick]];
+    Eigen::Index next = -1;
+    for (Eigen::Index j = 0; j < m; ++j) {
+      d2[j] = std::min(d2[j], (Vec3(C.row(j)) - p).squaredNorm());
+      if (!taken[j] && quota[bin[j]] > 0 && (next < 0 || d2[j] > d2[next])) next = j;
+    }
+    pick = next;
+  }
+  return out.topRows(n);
+}
+
 // Re-routing onto a side area (an area along the belly; TemplateMapOptions::side_reroute): a
 // fibre leaves its mapped path for its target at the point j of its end half that minimises
 // turn_j + |P_j - T| / spacing, turn_j the angle between the segment from the target T to P_j
@@ -646,26 +720,48 @@ SideCut find_side_cut(const Points3& P, const Vec3& T, bool at_origin, double sp
   return best;
 }
 
+// bands > 0 (fibre budget, origin side areas): fibre f < n = min(count, targets) is matched
+// within band floor(f bands / n) to the targets of the same band in their order from the area's
+// far end along `axis` (so the first fibres, spread over the section by the start order, start
+// nearest the muscle's end); bands = 0: one global band over all targets.
 void reroute_to_side_area(std::vector<Points3>& fibres, const Points3& targets, bool at_origin,
-                          double spacing, double max_turn) {
+                          double spacing, double max_turn, const Vec3& axis, int bands) {
   const int count = static_cast<int>(fibres.size());
   const int nt = static_cast<int>(targets.rows());
-  std::vector<std::pair<double, std::int64_t>> pairs;
-  pairs.reserve(static_cast<std::size_t>(count) * nt);
-  for (int f = 0; f < count; ++f)
-    for (int t = 0; t < nt; ++t)
-      pairs.emplace_back(find_side_cut(fibres[f], targets.row(t), at_origin, spacing, max_turn).cost,
-                         static_cast<std::int64_t>(f) * nt + t);
-  std::sort(pairs.begin(), pairs.end());
+  const int n = std::min(count, nt);
+  std::vector<int> order(static_cast<std::size_t>(nt));  // targets from the far end
+  std::iota(order.begin(), order.end(), 0);
+  if (bands > 0) {
+    const double sign = at_origin ? 1.0 : -1.0;
+    std::stable_sort(order.begin(), order.end(), [&](int a, int b) {
+      return sign * targets.row(a).dot(axis) < sign * targets.row(b).dot(axis);
+    });
+  }
+  const int num_bands = bands > 0 ? std::min(bands, std::max(n, 1)) : 1;
   std::vector<int> target_of(count, -1);
   std::vector<char> used(nt, 0);
-  int assigned = 0;
-  for (const auto& [cost, ft] : pairs) {
-    const int f = static_cast<int>(ft / nt), t = static_cast<int>(ft % nt);
-    if (target_of[f] >= 0 || used[t]) continue;
-    target_of[f] = t;
-    used[t] = 1;
-    if (++assigned == std::min(count, nt)) break;
+  for (int band = 0; band < num_bands; ++band) {
+    // Fibres [f0, f1) and, with bands, the targets of ranks [f0, f1); else all fibres and targets.
+    const int f0 = bands > 0 ? band * n / num_bands : 0;
+    const int f1 = bands > 0 ? (band + 1) * n / num_bands : count;
+    const int r0 = bands > 0 ? f0 : 0, r1 = bands > 0 ? f1 : nt;
+    std::vector<std::pair<double, std::int64_t>> pairs;
+    pairs.reserve(static_cast<std::size_t>(f1 - f0) * (r1 - r0));
+    for (int f = f0; f < f1; ++f)
+      for (int r = r0; r < r1; ++r) {
+        const int t = order[r];
+        pairs.emplace_back(find_side_cut(fibres[f], targets.row(t), at_origin, spacing, max_turn).cost,
+                           static_cast<std::int64_t>(f) * nt + t);
+      }
+    std::sort(pairs.begin(), pairs.end());
+    int assigned = 0;
+    for (const auto& [cost, ft] : pairs) {
+      const int f = static_cast<int>(ft / nt), t = static_cast<int>(ft % nt);
+      if (target_of[f] >= 0 || used[t]) continue;
+      target_of[f] = t;
+      used[t] = 1;
+      if (++assigned == std::min(f1 - f0, r1 - r0)) break;
+    }
   }
   for (int f = 0; f < count; ++f) {
     if (target_of[f] < 0) continue;
@@ -733,13 +829,21 @@ FibreSet TemplateMapper::calc_fibres(const FibreSet& unit_fibres, bool reroute_e
     const auto reroute = [&](bool at_origin) {
       const AttachmentArea& area = at_origin ? areas_.origin : areas_.insertion;
       const bool side = side_areas_ && !field_slicing_ && options_.side_reroute;
-      const Points3 targets = select_area_targets(
-          muscle_, area, count, side ? std::max(options_.target_factor, options_.side_target_factor)
-                                     : options_.target_factor);
+      const int factor =
+          side ? std::max(options_.target_factor, options_.side_target_factor) : options_.target_factor;
+      // Fibre budget along an origin side area (TemplateMapOptions::side_budget).
+      const bool budget = side && at_origin && origin_side_ && options_.side_budget;
+      const Vec3 axis = X_mesh_box_.linear().col(2);
+      const Points3 targets =
+          budget ? select_budget_targets(muscle_, area, count, factor, axis,
+                                         X_mesh_box_.translation().dot(axis), axial_length_ / (K - 1),
+                                         S.section_area, std::clamp(options_.side_section_share, 0.0, 1.0))
+                 : select_area_targets(muscle_, area, count, factor);
       if (side) {
         // Fibre spacing: sqrt(mean slice area / count).
         reroute_to_side_area(out.fibres, targets, at_origin, std::sqrt(mean_section_area_ / count),
-                             options_.side_max_turn_rad);
+                             options_.side_max_turn_rad, axis,
+                             budget ? std::max(options_.side_order_bands, 1) : 0);
         return;
       }
       std::vector<Vec3> guess(count);

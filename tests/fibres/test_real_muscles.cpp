@@ -90,7 +90,7 @@ double find_floor(const std::string& name, FibreMethod method, const std::string
     const char* metric;
     double floor;
   };
-  const FibreMethod T = FibreMethod::template_map, H = FibreMethod::harmonic;
+  const FibreMethod H = FibreMethod::harmonic;
   // Floors a little under the values measured on 2026-11-24 after volume seeding of the harmonic
   // streamlines, stratified area sampling, contact-speck removal and farthest-point parallel starts
   // (docs/fibres.md, "Quality invariants"); 18 of the 27 earlier entries met the targets then, and
@@ -100,10 +100,10 @@ double find_floor(const std::string& name, FibreMethod method, const std::string
   // little margin; it stays listed with a floor of 0.93 so that a last-digit difference in
   // another build cannot flip the test. Session 8: the soleus' template coverage (0.858 -> 0.968,
   // field slicing) and the VH TA's template origin spread (0.751 -> 0.861) and smoothness (0.54 ->
-  // 0.97, side re-routing) meet their targets; the VH TA's template coverage rose 0.765 -> 0.918
-  // (floor raised from 0.74 to 0.89).
+  // 0.97, side re-routing) meet their targets; the VH TA's template coverage rose 0.765 -> 0.918.
+  // Session 9: the VH TA's template coverage meets its target (0.918 -> 0.972, fibre budget
+  // along the origin strip); entry removed.
   static const Shortfall known[] = {
-      {"tibialis_anterior", T, "coverage", 0.89},
       {"tibialis_anterior", H, "coverage", 0.93},
   };
   for (const Shortfall& k : known)

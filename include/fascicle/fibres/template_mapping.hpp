@@ -59,6 +59,19 @@ struct TemplateMapOptions {
   bool side_reroute = true;
   int side_target_factor = 8;
   double side_max_turn_rad = 1.0471975511965976;  // 60 degrees
+  // Fibre budget along an origin side area (docs/fibres.md, "Side re-routing"): a fibre starting
+  // on the strip crosses only the sections beyond its start, so the targets are allotted along
+  // the axis (per slice interval) so that the number of fibres started by each level is
+  // count x (side_section_share x the running maximum of the section area, from the area's far
+  // end, over its maximum on the area + (1 - side_section_share) x the area's fraction), the
+  // targets within that quota chosen by farthest-point order as before; and fibres are matched to
+  // the targets in `side_order_bands` bands: the first count / bands fibres (the start order is a
+  // farthest-point order, so every prefix is spread over the section) to the targets nearest the
+  // far end, greedily by least cost within a band, then the next. Off: the session-8 rule
+  // (evenly spaced targets, global least-cost matching).
+  bool side_budget = true;
+  double side_section_share = 0.5;
+  int side_order_bands = 10;
   int field_smoothing_iterations = 2;
   TetOptions field_tets{.max_volume = 0.0, .volume_scale = 2.0, .max_radius_edge_ratio = 0.0};
 };
@@ -124,6 +137,7 @@ class TemplateMapper {
   double mean_section_area_ = 0.0;  // mean slice contour area (m^2)
   bool field_slicing_ = false;
   bool side_areas_ = false;  // an attachment area lies along the side of the belly
+  bool origin_side_ = false;  // the origin area itself lies along the side of the belly
   std::vector<SliceIssue> issues_;
   std::unique_ptr<Slices> slices_;
   std::unique_ptr<MeshQuery> query_;
