@@ -166,11 +166,13 @@ void print_error_map(const Case& c, const Setup& s, bool thickness_plane) {
   for (const Points3& T : tracts.fibres)
     for (Eigen::Index k = 1; k < T.rows(); ++k) {
       const Vec3 p = 0.5 * (T.row(k) + T.row(k - 1)).transpose();
+      if (!((T.row(k) - T.row(k - 1)).norm() > 0.0)) continue;  // a repeated tract point
       Vec3 tv = (T.row(k) - T.row(k - 1)).transpose().normalized();
       Vec3 fv = piece_dir[pieces.find_nearest(p).first];
       const int ti = tets.find_nearest(p).first;  // the tet of the nearest centroid
       const Vec3 el = Vec3(grad_along.row(ti)).normalized();
       const Vec3 gu = grad_u.row(ti);
+      if (!((gu - gu.dot(el) * el).norm() > 0.0) || !(grad_along.row(ti).norm() > 0.0)) continue;  // no frame
       const Vec3 et = (gu - gu.dot(el) * el).normalized(), eb = el.cross(et);
       if (tv.dot(el) < 0) tv = -tv;
       if (fv.dot(el) < 0) fv = -fv;

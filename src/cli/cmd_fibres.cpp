@@ -37,6 +37,13 @@ struct FibresArgs {
   std::string aponeurosis;          // interior insertion aponeurosis mesh
 };
 
+// The plane the pennate field's fibres turn in: as given, else thickness with the line-of-action
+// reference and gradient with the aponeurosis reference.
+std::string effective_pennation_plane(const FibresArgs& a) {
+  if (!a.pennation_plane.empty()) return a.pennation_plane;
+  return a.pennation_reference == "aponeurosis" ? "gradient" : "thickness";
+}
+
 std::vector<std::string> split_list(const std::string& s) {
   std::vector<std::string> out;
   std::stringstream ss(s);
@@ -127,8 +134,10 @@ void run_fibres(const FibresArgs& a) {
       }
       opt.harmonic.pennation_rad = opt.pennation_rad;
       // The fibres turn in the plane of the box's thickness direction unless asked otherwise
-      // (session 9: DTI MG 14.2 -> 13.4 deg, TA 15.6 -> 13.6 deg; docs/fibres.md).
-      if (a.pennation_plane != "gradient")
+      // (session 9: DTI MG 14.2 -> 13.4 deg, TA 15.6 -> 13.6 deg; docs/fibres.md). With the angle
+      // measured against the aponeuroses the default stays the aponeuroses' own potential: the
+      // thickness plane would replace their level sets by the box's plane.
+      if (effective_pennation_plane(a) == "thickness")
         opt.harmonic.transverse_direction = areas.thickness_direction;
     }
   } else if (!a.origin.empty() || !a.insertion.empty()) {
@@ -163,7 +172,7 @@ void run_fibres(const FibresArgs& a) {
       j["attachments"] = "aponeurosis";
       j["architecture"] = to_string(architecture);
       if (opt.method == FibreMethod::harmonic)
-        j["pennation_plane"] = a.pennation_plane == "gradient" ? "gradient" : "thickness";
+        j["pennation_plane"] = effective_pennation_plane(a);
     }
     if (a.pennation_deg > 0.0) j["target_pennation_deg"] = a.pennation_deg;
     write_file_atomically(a.report, [&](std::ostream& out) { out << j.dump(2) << '\n'; });
@@ -215,8 +224,9 @@ void add_fibres_commands(CLI::App& app, Invocation& run) {
       ->check(CLI::IsMember({"line", "aponeurosis"}));
   cmd->add_option("--pennation-plane", args->pennation_plane,
                   "With --attachments aponeurosis --method harmonic: the plane the fibres turn in "
-                  "away from the line of action, thickness (default: the aponeurosis box's "
-                  "thickness direction) or gradient (the aponeurosis potential's gradient)")
+                  "away from the line of action, thickness (the aponeurosis box's thickness direction; "
+                  "default with --pennation-reference line) or gradient (the aponeurosis "
+                  "potential's gradient; default with --pennation-reference aponeurosis)")
       ->check(CLI::IsMember({"thickness", "gradient"}));
   cmd->add_option("--insertion-side", args->insertion_side,
                   "With --attachments aponeurosis: a mesh on the insertion aponeurosis' side (the "

@@ -144,6 +144,12 @@ VecX solve_laplace(const TetMesh& mesh, const std::vector<int>& zero_vertices,
 
 HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& areas,
                                   const HarmonicOptions& options) {
+  // Options first, before the tetrahedralisation and the solves.
+  if (options.pennation_rad > 0.0 && !(options.pennation_rad < 0.5 * M_PI))
+    throw_usage("the pennation angle must be in (0, 90) degrees");
+  if (options.fibre_length_m < 0.0) throw_usage("the fibre length must not be negative");
+  if (!options.transverse_direction.allFinite())
+    throw_usage("the transverse direction of the pennate field must be finite");
   HarmonicField field;
   field.surface = muscle;
   field.tets = calc_tet_mesh(muscle, options.tets);
@@ -168,8 +174,6 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
     // myocardium): e_l = grad(u_along) / |.| follows the muscle from end to end, e_t = the part of
     // grad(u) normal to e_l points from the origin to the insertion aponeurosis; the fibre runs
     // at the pennation angle a between them: d = cos(a) e_l + sin(a) e_t.
-    if (!(options.pennation_rad < 0.5 * M_PI))
-      throw_usage("the pennation angle must be in (0, 90) degrees");
     const Vec3 towards_origin = areas.origin.centroid - areas.insertion.centroid;
     const Attachments ends = find_end_attachments(muscle, options.end_fraction,
                                                   towards_origin.norm() > 0.0
@@ -181,7 +185,6 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
     calc_field_gradients(field.tets, field.u_along, tet_along, vertex_along);
     const double ca_fixed = std::cos(options.pennation_rad);
     const double sa_fixed = std::sin(options.pennation_rad);
-    if (options.fibre_length_m < 0.0) throw_usage("the fibre length must not be negative");
     const bool to_aponeurosis =
         options.pennation_reference == HarmonicOptions::PennationReference::aponeurosis;
     // Transmural direction for the aponeurosis reference: with both faces of a unipennate muscle
@@ -201,8 +204,6 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
         vertex_across = vertex_crossing;
       }
     }
-    if (!options.transverse_direction.allFinite())
-      throw_usage("the transverse direction of the pennate field must be finite");
     const bool fixed_plane = options.transverse_direction.norm() > 0.0;
     const Vec3 plane_dir =
         fixed_plane ? Vec3(options.transverse_direction.normalized()) : Vec3::Zero();

@@ -542,9 +542,26 @@ std::vector<Vec2> TemplateMapper::calc_section_samples(int count) const {
     return {S.farthest_first.begin(), S.farthest_first.begin() + count};
   const std::vector<detail::TriangleSample> samples =
       detail::sample_triangles(slices_->section_cells, count);
+  // The stratified sample comes in cell order; put it in farthest-point order (in the unit
+  // square, from the sample nearest its centroid), so that every prefix is spread over the
+  // section as the first 256 are: the side re-routing's fibre budget matches fibres in bands of
+  // that order (reroute_to_side_area).
+  const auto n = static_cast<Eigen::Index>(samples.size());
   std::vector<Vec2> out;
   out.reserve(samples.size());
-  for (const detail::TriangleSample& s : samples) out.emplace_back(s.point.x(), s.point.y());
+  if (n == 0) return out;
+  Eigen::Matrix2Xd r(2, n);
+  for (Eigen::Index i = 0; i < n; ++i) r.col(i) = samples[i].point.head<2>();
+  Eigen::VectorXd d2 = (r.colwise() - r.rowwise().mean()).colwise().squaredNorm().transpose();
+  Eigen::Index pick = 0;
+  d2.minCoeff(&pick);
+  d2.setConstant(std::numeric_limits<double>::infinity());
+  for (Eigen::Index i = 0; i < n; ++i) {
+    out.emplace_back(r.col(pick));
+    d2 = d2.cwiseMin((r.colwise() - r.col(pick)).colwise().squaredNorm().transpose());
+    d2(pick) = -1.0;  // taken
+    d2.maxCoeff(&pick);
+  }
   return out;
 }
 

@@ -196,16 +196,32 @@ TEST(CliFibres, PennationPlaneIsSelectable) {
     EXPECT_LT(length[i], 0.0683 * 1.25) << planes[i];
   }
   EXPECT_GT(std::abs(length[0] - length[1]), 1e-4);
-  // Refused where it does not apply (template method, no aponeurosis areas) and when unknown.
+  // With the angle measured against the aponeuroses the default plane is their potential's
+  // gradient (the thickness plane would replace their level sets by the box's plane).
+  {
+    const auto json = (dir / "reference.json").string();
+    const FibresCliRun r = run_fibres_cli(
+        "--mesh " + ta_mesh() + " --units mm --attachments aponeurosis --architecture bipennate "
+        "--pennation-deg 9.6 --aponeurosis " + apo + " --method harmonic --pennation-reference "
+        "aponeurosis --count 40 --resolution 9 --out " + (dir / "f.vtp").string() + " --report " + json);
+    ASSERT_EQ(r.code, 0) << r.out;
+    std::ifstream in(json);
+    EXPECT_EQ(nlohmann::json::parse(in)["pennation_plane"].get<std::string>(), "gradient");
+  }
+  // Refused where it does not apply (template method, no aponeurosis areas) and when unknown,
+  // with a message naming the option.
   FibresCliRun r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --attachments aponeurosis "
                                   "--pennation-deg 9.6 --pennation-plane thickness --out " +
                                   (dir / "f.vtp").string());
   EXPECT_EQ(r.code, 2) << r.out;
+  EXPECT_NE(r.out.find("--pennation-plane"), std::string::npos) << r.out;
   r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --method harmonic --pennation-plane "
                      "thickness --out " + (dir / "f.vtp").string());
   EXPECT_EQ(r.code, 2) << r.out;
+  EXPECT_NE(r.out.find("--pennation-plane"), std::string::npos) << r.out;
   r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --attachments aponeurosis --pennation-deg "
                      "9.6 --method harmonic --pennation-plane sideways --out " +
                      (dir / "f.vtp").string());
   EXPECT_EQ(r.code, 2) << r.out;
+  EXPECT_NE(r.out.find("pennation-plane"), std::string::npos) << r.out;
 }

@@ -70,7 +70,9 @@ struct HarmonicOptions {
   // thickness direction (find_aponeurosis_attachments' box x, Attachments::thickness_direction):
   // the DTI tracts of the medial gastrocnemius and tibialis anterior turn within that plane,
   // while grad(u) also turns sideways near the areas' edges (docs/fibres.md, "Session 9").
-  // Zero: grad(u) (or the faces' potential), as before.
+  // With PennationReference::aponeurosis and both faces known, e_n is then this fixed direction,
+  // not the faces' level sets (the angle is measured against the box's plane); the CLI keeps the
+  // gradient there unless asked. Zero: grad(u) (or the faces' potential), as before.
   Vec3 transverse_direction = Vec3::Zero();
 };
 
