@@ -426,7 +426,7 @@ void SurfaceFirstSolver::factorise() {
   ++info_.factorisations;
 }
 
-Points3 SurfaceFirstSolver::solve(const Eigen::MatrixXd& rhs) const {
+Eigen::MatrixXd SurfaceFirstSolver::solve(const Eigen::MatrixXd& rhs) const {
   const Factor& f = *factor_;
   Eigen::MatrixXd y = f.get_active().solve(rhs);
   if (!f.low_rank.empty()) {
