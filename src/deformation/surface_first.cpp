@@ -81,6 +81,21 @@ VertexAdjacency make_vertex_adjacency(const Triangles& F, Eigen::Index num_verti
       g.neighbours[fill[a]++] = F(f, (k + 1) % 3);
       g.neighbours[fill[a]++] = F(f, (k + 2) % 3);
     }
+  // Each edge of a closed surface lies in two triangles, so every neighbour came twice: keep its
+  // first occurrence only (in place, rows compacted). A walk over the rows then meets the
+  // neighbours in the same order as over the doubled rows, and does half the work.
+  int out = 0;
+  for (Eigen::Index i = 0; i < num_vertices; ++i) {
+    const int begin = g.start[i], end = g.start[i + 1];
+    g.start[i] = out;
+    for (int k = begin; k < end; ++k) {
+      const int q = g.neighbours[k];
+      if (std::find(g.neighbours.begin() + g.start[i], g.neighbours.begin() + out, q) == g.neighbours.begin() + out)
+        g.neighbours[out++] = q;
+    }
+  }
+  g.start[num_vertices] = out;
+  g.neighbours.resize(static_cast<std::size_t>(out));
   return g;
 }
 

@@ -57,7 +57,8 @@ struct SurfaceFirstOptions {
   double max_volume_error = 1e-4;
 };
 
-// Vertex neighbours of a triangle mesh (compressed rows; a neighbour may be listed twice).
+// Vertex neighbours of a triangle mesh (compressed rows; each neighbour once, in the order of its
+// first appearance in the triangles).
 struct VertexAdjacency {
   std::vector<int> start;       // neighbours of i: neighbours[start[i] .. start[i+1])
   std::vector<int> neighbours;

@@ -21,7 +21,7 @@ namespace fascicle {
 
 // Vertex neighbours of a closed triangle surface in compressed rows, as make_vertex_adjacency
 // (deformation/surface_first.hpp) orders them: neighbours of i are neighbours[start[i] ..
-// start[i+1]); a neighbour may be listed twice.
+// start[i+1]), each once.
 struct SurfaceGraph {
   std::vector<int> start;
   std::vector<int> neighbours;
