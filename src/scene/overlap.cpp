@@ -21,18 +21,33 @@ Eigen::AlignedBox3d calc_padded_bounding_box(const Points3& V) {
   return box;
 }
 
+OrientedBounds calc_padded_oriented_bounds(const Points3& V, const Mat3& axes) {
+  OrientedBounds b;
+  b.axes = axes;
+  const Points3 U = V * axes;
+  b.lo = U.colwise().minCoeff().transpose();
+  b.hi = U.colwise().maxCoeff().transpose();
+  const double pad = 1e-9 * (b.hi - b.lo).norm();
+  b.lo.array() -= pad;
+  b.hi.array() += pad;
+  return b;
+}
+
 MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, const MeshQuery& other,
-                                  const Eigen::AlignedBox3d& other_box) {
+                                  const Eigen::AlignedBox3d& other_box, const OrientedBounds* other_bounds) {
   MuscleOverlap out;
   const Eigen::Index n = V.rows();
-  // The unknown vertices: those in other's box (every other vertex has winding number 0).
+  // The unknown vertices: those in other's box (and oriented bounds); every other vertex lies
+  // outside a convex set holding other's surface, so its winding number is 0.
   std::vector<int> local(static_cast<std::size_t>(n), -1);  // -1: left out; -2: in the box
   int unknown = 0;
-  for (Eigen::Index i = 0; i < n; ++i)
-    if (other_box.contains(Vec3(V.row(i).transpose()))) {
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const Vec3 x = V.row(i).transpose();
+    if (other_box.contains(x) && (!other_bounds || other_bounds->contains(x))) {
       local[i] = -2;
       ++unknown;
     }
+  }
   if (unknown == 0) return out;
   // The sub-graph: unknown vertices plus their known neighbours, kept in a's vertex order. The full
   // propagation queues every known vertex in that order; known vertices without an unknown

@@ -3,6 +3,7 @@
 
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/parallel.hpp"
+#include "fascicle/geometry/obb.hpp"
 #include "muscle_setup.hpp"
 
 #include <algorithm>
@@ -36,9 +37,13 @@ State make_state(const Model& model) {
   s.X_ground_body.assign(model.bodies.size(), Transform::Identity());
   s.muscles.resize(model.muscles.size());
   s.representation_states.resize(model.muscles.size());
-  for (size_t m = 0; m < model.muscles.size(); ++m)
+  // In parallel over muscles: a representation's state is built from the immutable Model alone
+  // (surface-first: each muscle's first sparse factorisation, tens of ms for the large ones), and
+  // does not depend on the order (orderings that may use METIS take the process-wide ordering lock).
+  parallel_for(model.muscles.size(), [&](std::size_t m) {
     if (model.muscles[m].representation)
       s.representation_states[m] = model.muscles[m].representation->make_state();
+  });
   for (const MuscleGroup& g : model.muscle_groups) s.group_states.push_back(g.group->make_state());
   s.skeleton.emplace(*model.skeleton);
   return s;
@@ -139,6 +144,8 @@ std::vector<double> calc_pair_depths(const Model& model, const std::vector<const
   const size_t n = model.muscles.size();
   cache.graph.resize(n);
   cache.query.resize(n);
+  cache.axes.resize(n, Mat3::Identity());
+  cache.has_axes.resize(n, 0);
   // Broad phase: bounding boxes of the closed surfaces.
   std::vector<Eigen::AlignedBox3d> box(n);
   for (size_t m = 0; m < n; ++m) {
@@ -157,6 +164,7 @@ std::vector<double> calc_pair_depths(const Model& model, const std::vector<const
       }
   // Per muscle: the edge graph (once per run) and the query of this surface.
   std::vector<Eigen::AlignedBox3d> padded(n);
+  std::vector<OrientedBounds> bounds(n);
   parallel_for(n, [&](size_t m) {
     if (!is_a[m] && !is_b[m]) return;
     const Points3& V = *surface[m];
@@ -164,6 +172,13 @@ std::vector<double> calc_pair_depths(const Model& model, const std::vector<const
       cache.graph[m] = make_surface_graph(model.muscles[m].rest_mesh.F, V.rows());
     if (!is_b[m]) return;
     padded[m] = calc_padded_bounding_box(V);
+    // Oriented bounds along the rest mesh's box axes (fixed per muscle, so every frame's bounds
+    // and results depend on that frame's surfaces only).
+    if (!cache.has_axes[m]) {
+      cache.axes[m] = compute_oriented_box(model.muscles[m].rest_mesh).axes;
+      cache.has_axes[m] = 1;
+    }
+    bounds[m] = calc_padded_oriented_bounds(V, cache.axes[m]);
     // A query kept from an earlier call is refitted to the new vertices (its answers equal a new
     // query's, geometry/mesh_query.hpp); the first call builds it.
     if (cache.query[m] && cache.query[m]->get_mesh().V.rows() == V.rows() &&
@@ -177,7 +192,7 @@ std::vector<double> calc_pair_depths(const Model& model, const std::vector<const
   parallel_for(pairs.size(), [&](size_t k) {
     const auto [a, b] = pairs[k];
     depth[static_cast<size_t>(a) * n + static_cast<size_t>(b)] =
-        calc_muscle_overlap(*surface[a], cache.graph[a], *cache.query[b], padded[b]).max_depth_m;
+        calc_muscle_overlap(*surface[a], cache.graph[a], *cache.query[b], padded[b], &bounds[b]).max_depth_m;
   });
   return depth;
 }

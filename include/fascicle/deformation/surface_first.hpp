@@ -57,7 +57,8 @@ struct SurfaceFirstOptions {
   double max_volume_error = 1e-4;
 };
 
-// Vertex neighbours of a triangle mesh (compressed rows; a neighbour may be listed twice).
+// Vertex neighbours of a triangle mesh (compressed rows; each neighbour once, in the order of its
+// first appearance in the triangles).
 struct VertexAdjacency {
   std::vector<int> start;       // neighbours of i: neighbours[start[i] .. start[i+1])
   std::vector<int> neighbours;
@@ -174,7 +175,8 @@ class SurfaceFirstSolver {
   // Makes solve() use K + w_c sum_{j in wanted} e_j e_j^T (wanted: sorted free indices): the
   // nearer factorised set plus a low-rank correction, or a numeric refactorisation.
   void prepare_factor(const std::vector<int>& wanted);
-  Points3 solve(const Eigen::MatrixXd& rhs) const;
+  // K^-1 rhs for any number of columns (the active factor and its low-rank correction).
+  Eigen::MatrixXd solve(const Eigen::MatrixXd& rhs) const;
   int solve_volume(const Points3& rhs_free, const Points3& fixed, Points3& X);
   bool update_contacts(const Points3& X, const std::vector<Transform>& bone_motions);
 

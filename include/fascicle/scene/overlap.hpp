@@ -21,7 +21,7 @@ namespace fascicle {
 
 // Vertex neighbours of a closed triangle surface in compressed rows, as make_vertex_adjacency
 // (deformation/surface_first.hpp) orders them: neighbours of i are neighbours[start[i] ..
-// start[i+1]); a neighbour may be listed twice.
+// start[i+1]), each once.
 struct SurfaceGraph {
   std::vector<int> start;
   std::vector<int> neighbours;
@@ -38,12 +38,30 @@ struct MuscleOverlap {
 // 1e-9 of its diagonal on every side.
 Eigen::AlignedBox3d calc_padded_bounding_box(const Points3& V);
 
+// A box with any fixed orientation around a surface's vertices: the points x with
+// lo <= axes^T x <= hi (axes: orthonormal columns). Like the axis-aligned box it is convex and holds
+// the whole surface, so a point outside it is outside the surface (winding number 0); for long,
+// obliquely lying muscles it is much tighter than the axis-aligned box.
+struct OrientedBounds {
+  Mat3 axes = Mat3::Identity();
+  Vec3 lo = Vec3::Zero(), hi = Vec3::Zero();
+  bool contains(const Vec3& x) const {
+    const Vec3 u = axes.transpose() * x;
+    return (u.array() >= lo.array()).all() && (u.array() <= hi.array()).all();
+  }
+};
+// Bounds of V along `axes`, padded as calc_padded_bounding_box pads (1e-9 of the box diagonal).
+OrientedBounds calc_padded_oriented_bounds(const Points3& V, const Mat3& axes);
+
 // Vertices of the closed surface (V, graph) inside the closed surface behind `other`, whose padded
 // box (calc_padded_bounding_box of other's vertices) is `other_box`. Same numbers as
 // calc_surface_overlap(V, F, other) for graph = make_surface_graph(F, V.rows()); falls back to it
-// (per-vertex ray vote) in the same cases.
+// (per-vertex ray vote) in the same cases. `other_bounds` (optional): oriented bounds of other's
+// vertices; vertices outside them are known to be outside as well, so fewer vertices need the
+// propagation (the winding numbers found are the same).
 MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, const MeshQuery& other,
-                                  const Eigen::AlignedBox3d& other_box);
+                                  const Eigen::AlignedBox3d& other_box,
+                                  const OrientedBounds* other_bounds = nullptr);
 
 // What the overlap measure keeps from frame to frame, per muscle (owned by State, created empty by
 // make_state(); filled on first use). Never changes results: a State whose cache is empty and one
@@ -51,6 +69,8 @@ MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, c
 struct MuscleOverlapCache {
   std::vector<SurfaceGraph> graph;                 // per muscle: edge graph of its rest triangles
   std::vector<std::unique_ptr<MeshQuery>> query;   // per muscle: query of its latest measured surface
+  std::vector<Mat3> axes;  // per muscle: axes of its rest mesh's oriented box (fixed; bounds per frame)
+  std::vector<char> has_axes;
   // Per ordered pair (a, b), at [a * #muscles + b]: the depth of a's rest-mesh vertices inside b's
   // rest mesh (0 when their rest boxes do not meet). A function of the Model, measured once.
   std::vector<double> rest_depth;
