@@ -297,9 +297,11 @@ struct SurfaceSeparation {
   // and whether the pair is separated fully (its rest overlap is small) or keeps rest depths.
   std::vector<VecX> rest_gap;
   std::vector<char> resolved;
-  // Exact culling of the vertex tests (like the bones' clearances): the signed gap of a surface to
-  // a point changes by at most the point's displacement plus the largest displacement of the
-  // surface's vertices (every point of a triangle is a convex combination of its corners).
+  // Culling of the vertex tests (like the bones' clearances): the distance of a surface to a
+  // point changes by at most the point's displacement plus the largest displacement of the
+  // surface's vertices (every point of a triangle is a convex combination of its corners). The
+  // bound is exact for the distance; the sign (face side, ray vote beyond 1 mm) can flip on a
+  // folded face without the distance passing through 0, which the bound does not see.
   // travel[b]: the sum over the surface updates of b's largest vertex displacement in that
   // update, so travel[b] now - then bounds every displacement of b's surface in between.
   // Per ordered pair a * nm + b, per vertex of a (empty until a is first near b): its gap at its
@@ -307,7 +309,6 @@ struct SurfaceSeparation {
   std::vector<double> travel;
   std::vector<VecX> tested_gap, tested_travel;
   std::vector<Points3> tested_at;
-  int tests = 0;  // exact vertex tests since the solver was made (diagnostics)
   std::vector<SurfaceContact> contacts;
   std::unordered_map<long long, int> keys;  // (a, b, v) -> index into contacts
   std::vector<std::vector<PushKernel>> kernels;  // per muscle, per display vertex
@@ -607,18 +608,25 @@ Vec3 calc_surface_vertex(const FibreBundle& m, int v, const Points3& x) {
   return s;
 }
 
-// The gap of surface contact c at positions x: (s_v - c) . n, with c the contact's point of its
-// triangle and n the triangle's current unit normal (+inf for a degenerate triangle).
-double calc_contact_gap(const FibresFirstModel& model, const SurfaceContact& c, const Points3& x) {
-  const FibreBundle& ma = model.muscles[c.a];
-  const FibreBundle& mb = model.muscles[c.b];
+// The face of surface contact c at positions x: its corners, current unit normal n and the
+// contact's point c on it (its barycentric blend of the corners). False for a degenerate face.
+struct ContactFace {
   Vec3 corner[3];
-  for (int i = 0; i < 3; ++i) corner[i] = calc_surface_vertex(mb, mb.surface_triangles(c.triangle, i), x);
-  Vec3 n = (corner[1] - corner[0]).cross(corner[2] - corner[0]);
-  if (!(n.norm() > 0.0)) return std::numeric_limits<double>::infinity();
-  n.normalize();
-  const Vec3 point = c.barycentric[0] * corner[0] + c.barycentric[1] * corner[1] + c.barycentric[2] * corner[2];
-  return (calc_surface_vertex(ma, c.v, x) - point).dot(n);
+  Vec3 n;
+  Vec3 point;
+};
+bool calc_contact_face(const FibreBundle& mb, const SurfaceContact& c, const Points3& x, ContactFace& f) {
+  for (int i = 0; i < 3; ++i) f.corner[i] = calc_surface_vertex(mb, mb.surface_triangles(c.triangle, i), x);
+  f.n = (f.corner[1] - f.corner[0]).cross(f.corner[2] - f.corner[0]);
+  if (!(f.n.norm() > 0.0)) return false;
+  f.n.normalize();
+  f.point = c.barycentric[0] * f.corner[0] + c.barycentric[1] * f.corner[1] + c.barycentric[2] * f.corner[2];
+  return true;
+}
+
+// Key of the contact of vertex v of muscle a with muscle b's surface (SurfaceSeparation::keys).
+long long get_contact_key(int a, int v, int b, int nm) {
+  return (static_cast<long long>(a) * nm + b) * (1LL << 31) + v;
 }
 
 // Signed gap of p from a closed, outward surface (positive outside): the closest point, and the
@@ -642,6 +650,23 @@ double calc_signed_gap(const MeshQuery& surface, const Vec3& p, ClosestPoint& cp
   if (!detail::calc_is_behind_bone(surface, p, cp)) return cp.distance;
   if (cp.distance > confirm_beyond_m && !surface.calc_is_inside(p)) return cp.distance;
   return -cp.distance;
+}
+
+// Whether surface contact c still holds at positions x, to be kept for the next frame (the
+// surfaces' queries brought to x): its gap (s_v - c) . n to its face's plane is below the minimum
+// plus the margin, and so is its gap to the other surface itself. The second test releases a
+// vertex that slid past its face: held against that face's plane it would float off a convex
+// partner by about s^2 / 2R after a slide s over radius R, and detection, which refreshes a known
+// contact's face only while the vertex is below its minimum gap, would not notice; if the vertex
+// is still near, the next detection finds it again with its current closest face.
+bool calc_contact_holds(const FibresFirstModel& model, const SurfaceSeparation& ss,
+                        const SurfaceContact& c, const Points3& x, double margin) {
+  ContactFace f;
+  if (!calc_contact_face(model.muscles[c.b], c, x, f)) return false;
+  const Vec3 s = calc_surface_vertex(model.muscles[c.a], c.v, x);
+  if (!((s - f.point).dot(f.n) <= c.min_gap + margin)) return false;
+  ClosestPoint cp;
+  return calc_signed_gap(*ss.query[c.b], s, cp) <= c.min_gap + margin;
 }
 
 Eigen::AlignedBox3d calc_box(const Points3& V, double pad) {
@@ -736,7 +761,8 @@ void update_surfaces(const FibresFirstModel& model,
 // rest depth). A vertex of a is tested against b's surface (closest point and side) only when it
 // lies in b's box padded by the margin and the bound from its last test (see SurfaceSeparation)
 // does not keep it beyond the margin; the vertices found, their gaps and the contacts added are
-// those of testing every vertex, in the order a, v, b. (Before, a Verlet list of the vertices
+// those of testing every vertex, in the order a, v, b, except where the sign rule flips on a
+// folded face without the distance passing through 0 (see SurfaceSeparation). (Before, a Verlet list of the vertices
 // within margin + 2 mm, rebuilt 2-3 times per frame on the VH shank, chose the tested vertices:
 // its rebuilds were about 19 % of the solver's time.)
 int detect_surface_contacts(const FibresFirstModel& model,
@@ -756,7 +782,6 @@ int detect_surface_contacts(const FibresFirstModel& model,
     ClosestPoint cp;
   };
   std::vector<std::vector<Found>> found(nm);
-  std::vector<int> tests(nm, 0);
   parallel_for(static_cast<std::size_t>(nm), [&](std::size_t ai) {
     const int a = static_cast<int>(ai);
     if (!ss.query[a]) return;
@@ -783,7 +808,6 @@ int detect_surface_contacts(const FibresFirstModel& model,
         if (bound > o.surface_margin_m * (1.0 + 1e-9) + 1e-12) continue;  // cannot be within the margin
         ClosestPoint cp;
         const double gap = calc_signed_gap(*ss.query[b], p, cp);
-        ++tests[a];
         ss.tested_gap[ab][v] = gap;
         ss.tested_travel[ab][v] = ss.travel[b];
         ss.tested_at[ab].row(v) = p.transpose();
@@ -793,7 +817,6 @@ int detect_surface_contacts(const FibresFirstModel& model,
   });
   int added = 0;
   for (int a = 0; a < nm; ++a) {
-    ss.tests += tests[a];
     for (const Found& f : found[a]) {
       const int v = f.v, b = f.b;
       if (f.gap < 0.0) {
@@ -805,7 +828,7 @@ int detect_surface_contacts(const FibresFirstModel& model,
         }
       }
       if (!add || !(f.gap < get_min_gap(ss, o, nm, a, v, b))) continue;
-      const long long key = (static_cast<long long>(a) * nm + b) * (1LL << 31) + v;
+      const long long key = get_contact_key(a, v, b, nm);
       const auto [it, fresh] = ss.keys.emplace(key, static_cast<int>(ss.contacts.size()));
       if (!fresh) {
         // a known contact: it pushes against the current closest face (the surfaces slide)
@@ -855,13 +878,10 @@ double push_surface_contact(const FibresFirstModel& model, SurfaceSeparation& ss
   const FibreBundle& ma = model.muscles[c.a];
   const FibreBundle& mb = model.muscles[c.b];
   const Vec3 s = calc_surface_vertex(ma, c.v, x);
-  Vec3 corner[3];
-  for (int i = 0; i < 3; ++i) corner[i] = calc_surface_vertex(mb, mb.surface_triangles(c.triangle, i), x);
-  Vec3 n = (corner[1] - corner[0]).cross(corner[2] - corner[0]);
-  if (!(n.norm() > 0.0)) return 0.0;
-  n.normalize();
-  const Vec3 point = c.barycentric[0] * corner[0] + c.barycentric[1] * corner[1] + c.barycentric[2] * corner[2];
-  const double deficit = c.min_gap - (s - point).dot(n);
+  ContactFace face;
+  if (!calc_contact_face(mb, c, x, face)) return 0.0;
+  const Vec3& n = face.n;
+  const double deficit = c.min_gap - (s - face.point).dot(n);
   if (!(deficit > 0.0)) return deficit;
   // a side: its bump (movable particles only, ascending) and c = sum_k w_k phi_k
   auto phi_of = [&](int p) {
@@ -1610,15 +1630,17 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
     }
   }
 
-  // surface contacts: those still touching (gap below the minimum plus the margin) stay active in
-  // the next frame, so its first round already holds them; the others are released
+  // surface contacts: those still holding (calc_contact_holds: gap below the minimum plus the
+  // margin, vertex over its face) stay active in the next frame, so its first round already holds
+  // them; the others are released
   if (ws.surfaces.enabled) {
     SurfaceSeparation& ss = ws.surfaces;
+    update_surfaces(model, ws.systems, x, ss);
     std::vector<SurfaceContact> kept;
     ss.keys.clear();
     for (const SurfaceContact& c : ss.contacts) {
-      if (!(calc_contact_gap(model, c, x) <= c.min_gap + o.surface_margin_m)) continue;
-      ss.keys.emplace((static_cast<long long>(c.a) * nm + c.b) * (1LL << 31) + c.v, static_cast<int>(kept.size()));
+      if (!calc_contact_holds(model, ss, c, x, o.surface_margin_m)) continue;
+      ss.keys.emplace(get_contact_key(c.a, c.v, c.b, nm), static_cast<int>(kept.size()));
       kept.push_back(c);
     }
     ss.contacts = std::move(kept);
