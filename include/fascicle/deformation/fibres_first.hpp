@@ -142,6 +142,10 @@ struct FibresFirstOptions {
   // with still moves.
   int max_iterations = 20;
   double step_tolerance = 3e-3;
+  // With separate_surfaces only (0: off): a muscle whose step has not fallen below 0.9 x its
+  // smallest step of the round for this many iterations stops (as if converged; it iterates again
+  // when a neighbour wakes it). See docs/representations.md, "Stall rule".
+  int stall_iterations = 4;
   // Anderson acceleration of the local/global iterations: number of previous iterates mixed
   // (0: plain projective dynamics).
   int anderson_window = 5;
