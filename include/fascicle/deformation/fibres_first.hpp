@@ -127,7 +127,8 @@ struct FibresFirstOptions {
   // vertex against the opposite face's three particles with their barycentric weights); see
   // docs/representations.md, "Surface particles". Off by default: with separate_surfaces it
   // brings the VH shank's scene overlap from 8.3 mm to 0 at every frame (volume <= 2.7e-4,
-  // penetration 0) but costs about 17 ms CPU per frame against 8 ms (session 9, 2026-11-25),
+  // penetration 0) but costs about 15 ms CPU per frame against 8 ms (session 9, 2026-11-25,
+  // with the stall rule below),
   // and on gait2392's generated bellies (frame 21) and on the synthetic leg of scene/demo.hpp
   // (frame 39 at 25 Hz) the separation fails the volume hold.
   bool surface_particles = false;
