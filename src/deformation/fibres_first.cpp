@@ -1487,6 +1487,11 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
       list.erase(std::unique(list.begin(), list.end()), list.end());
     }
     std::vector<char> active(nm, 1), first(nm, 1);
+    // stall rule (separation only): per muscle, the smallest step of this round and the
+    // iterations since the step last fell below 0.9 x that smallest step
+    const bool stall_rule = ws.surfaces.enabled && o.stall_iterations > 0;
+    std::vector<double> best_step(nm, std::numeric_limits<double>::infinity());
+    std::vector<int> since_best(nm, 0);
     for (int it = 0; it < o.max_iterations; ++it) {
       ++info_.iterations;
       snapshot = x;
@@ -1514,6 +1519,18 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
       }
       std::vector<char> moving(nm, 0);
       for (int mi = 0; mi < nm; ++mi) moving[mi] = active[mi] && steps[mi] >= o.step_tolerance;
+      // a muscle whose step has not fallen by 10 % in stall_iterations iterations counts as not
+      // moving: it rests, and it no longer wakes its neighbours (it iterates again when woken)
+      if (stall_rule)
+        for (int mi = 0; mi < nm; ++mi) {
+          if (!active[mi]) continue;
+          if (steps[mi] < 0.9 * best_step[mi]) {
+            best_step[mi] = steps[mi];
+            since_best[mi] = 0;
+          } else if (++since_best[mi] >= o.stall_iterations) {
+            moving[mi] = 0;
+          }
+        }
       // surface contacts: a muscle rests on unless the other side's particles of one of its
       // contacts moved by the tolerance in this iteration (its contact targets changed); a
       // moving partner elsewhere on its surface does not wake it (the particle pairs keep the

@@ -63,6 +63,7 @@ class FibresFirst final : public MuscleGroupRepresentation {
     o.dynamic = get_option(first, "dynamic", 0.0) != 0.0;
     o.damping_per_s = get_option(first, "damping", o.damping_per_s);
     o.max_iterations = static_cast<int>(get_option(first, "iterations", o.max_iterations));
+    o.stall_iterations = static_cast<int>(get_option(first, "stall_iterations", o.stall_iterations));
     o.max_contact_rounds = static_cast<int>(get_option(first, "contact_rounds", o.max_contact_rounds));
     // Fibre ends within this distance of their bone are fixed to it; the others are carried along
     // the action line by a tendon (keeping their rest arc-length fraction; with the option

@@ -394,7 +394,7 @@ double calc_deepest_vertex_inside(const Points3& vertices, const MeshQuery& othe
 // `deepest`: per muscle, its deepest vertex inside the other's surface (independent MeshQuery) at
 // the last frame. With separate_surfaces it asserts <= 0.5 mm at every frame; with
 // surface_particles also that every fibre particle stays inside its own surface (<= 0.1 mm out).
-int press_crossing_bundles(const FibresFirstOptions& o, std::vector<double>& deepest) {
+int press_crossing_bundles(const FibresFirstOptions& o, std::vector<double>& deepest, int* iterations = nullptr) {
   const double L = 0.06, gap = 0.003, half = 0.0045;
   const MeshQuery a0(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, -0.005)));
   const MeshQuery a1(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, L + 0.005)));
@@ -430,6 +430,7 @@ int press_crossing_bundles(const FibresFirstOptions& o, std::vector<double>& dee
   for (int k = 1; k <= 6; ++k) {
     const Transform T = translation(Vec3(-0.001 * k, 0, 0));
     solver.calc_frame({{Transform::Identity(), Transform::Identity(), T, T}});
+    if (iterations) *iterations += solver.get_info().iterations;
     const auto& fr = solver.get_muscles();
     deepest.assign(2, 0.0);
     for (int m = 0; m < 2; ++m) {
@@ -491,6 +492,28 @@ TEST(FibresFirst, SurfaceParticlesPressedTogetherDoNotOverlap) {
   on.surface_particles = true;
   on.separate_surfaces = true;
   expect_surface_separation_matters(on);
+}
+
+// The stall rule (a muscle whose step stops falling rests) at its most eager setting (one
+// iteration without a 10 % decrease) and off, with a step tolerance the iterations do not reach
+// (1e-5): off, every round runs its 60 iterations; on, the rule ends the rounds after a few. The
+// crossing bundles stay separated to <= 0.5 mm with the volume held and the fibres inside their
+// surfaces either way (asserted inside press_crossing_bundles), with surface contacts acting.
+TEST(FibresFirst, StallRuleKeepsSurfaceParticlesSeparated) {
+  int iterations[2] = {0, 0};
+  for (int stall : {0, 1}) {
+    FibresFirstOptions o;
+    o.surface_particles = true;
+    o.separate_surfaces = true;
+    o.stall_iterations = stall;
+    o.step_tolerance = 1e-5;  // a tail of slow steps for the rule to cut
+    o.max_iterations = 60;
+    std::vector<double> deepest;
+    EXPECT_GT(press_crossing_bundles(o, deepest, &iterations[stall]), 0) << "stall_iterations " << stall;
+    EXPECT_LE(std::max(deepest[0], deepest[1]), 5e-4) << "stall_iterations " << stall;
+  }
+  EXPECT_EQ(iterations[0], 6 * 60);  // 6 frames, one round each at the iteration limit
+  EXPECT_LT(iterations[1], 6 * 20);
 }
 
 // The solver's own surface-overlap measure (vertex tests culled by distance bounds from earlier

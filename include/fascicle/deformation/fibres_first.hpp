@@ -127,7 +127,8 @@ struct FibresFirstOptions {
   // vertex against the opposite face's three particles with their barycentric weights); see
   // docs/representations.md, "Surface particles". Off by default: with separate_surfaces it
   // brings the VH shank's scene overlap from 8.3 mm to 0 at every frame (volume <= 2.7e-4,
-  // penetration 0) but costs about 17 ms CPU per frame against 8 ms (session 9, 2026-11-25),
+  // penetration 0) but costs about 17 ms CPU per frame against 8 ms (session 9, 2026-11-25;
+  // about 15 ms with stall_iterations = 4 below),
   // and on gait2392's generated bellies (frame 21) and on the synthetic leg of scene/demo.hpp
   // (frame 39 at 25 Hz) the separation fails the volume hold.
   bool surface_particles = false;
@@ -142,6 +143,12 @@ struct FibresFirstOptions {
   // with still moves.
   int max_iterations = 20;
   double step_tolerance = 3e-3;
+  // With separate_surfaces only (0: off, the default): a muscle whose step has not fallen below
+  // 0.9 x its smallest step of the round for this many iterations stops (as if converged; it
+  // iterates again when a neighbour wakes it). 4 takes the VH shank with separation from 16.4 to
+  // 14.8 ms CPU per frame, but gait2392 with separation then fails the volume hold at frame 12
+  // instead of 21, so it is opt-in. See docs/representations.md, "Stall rule".
+  int stall_iterations = 0;
   // Anderson acceleration of the local/global iterations: number of previous iterates mixed
   // (0: plain projective dynamics).
   int anderson_window = 5;
