@@ -372,9 +372,11 @@ std::vector<VecX> calc_start_clearance(const FibresFirstModel& model) {
 }
 }  // namespace
 
-FibresFirstSolver::FibresFirstSolver(const FibresFirstModel& model)
-    : model_(model), ws_(std::make_unique<Workspace>()) {
-  Workspace& ws = *ws_;
+// A workspace as before the first frame: per-muscle systems with their spring matrices (no factor,
+// no contact weights, no acceleration history), no contacts, the surfaces' queries at rest.
+std::unique_ptr<FibresFirstSolver::Workspace> make_workspace(const FibresFirstModel& model_) {
+  auto ws_ = std::make_unique<FibresFirstSolver::Workspace>();
+  FibresFirstSolver::Workspace& ws = *ws_;
   const int N = model_.num_particles();
   for (std::size_t mi = 0; mi < model_.muscles.size(); ++mi) {
     const FibreBundle& m = model_.muscles[mi];
@@ -414,6 +416,11 @@ FibresFirstSolver::FibresFirstSolver(const FibresFirstModel& model)
   init_surface_separation(model_, ws.systems, ws.surfaces);
   ws.pair_target = Points3::Zero(N, 3);
   ws.pair_count.assign(N, 0);
+  return ws_;
+}
+
+FibresFirstSolver::FibresFirstSolver(const FibresFirstModel& model)
+    : model_(model), ws_(make_workspace(model)) {
   x_ = model_.rest;
   frames_.resize(model_.muscles.size());
 }
@@ -422,18 +429,7 @@ FibresFirstSolver::~FibresFirstSolver() = default;
 FibresFirstSolver::FibresFirstSolver(FibresFirstSolver&&) noexcept = default;
 
 void FibresFirstSolver::reset() {
-  Workspace& ws = *ws_;
-  ws.bone_contacts.clear(model_.num_particles());
-  ws.pairs.clear();
-  ws.pair_keys.clear();
-  ws.candidates.valid = false;
-  for (VecX& g : ws.surfaces.tested_gap) g.resize(0);  // forget the culling bounds
-  ws.surfaces.contacts.clear();
-  ws.surfaces.keys.clear();
-  ws.has_previous = false;
-  ws.correction.resize(0, 3);
-  ws.checked_at.assign(model_.num_bones(), model_.rest);
-  ws.clearance = calc_start_clearance(model_);
+  ws_ = make_workspace(model_);
   x_ = model_.rest;
   frames_.assign(model_.muscles.size(), {});
   info_ = {};

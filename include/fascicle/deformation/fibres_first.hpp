@@ -312,7 +312,7 @@ class FibresFirstSolver {
   const FibresFirstInfo& get_info() const { return info_; }
   // The fibres of muscle m as polylines (#particles_per_fibre x 3 each).
   std::vector<Points3> calc_fibres(int m) const;
-  // Forget the previous frame (warm start, velocities, contacts).
+  // Forget every frame: the solver is as new (warm start, velocities, contacts, factors).
   void reset();
 
   struct Workspace;  // factors, contacts, scratch (defined in the .cpp)
