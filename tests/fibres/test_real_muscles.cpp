@@ -115,6 +115,27 @@ double ms_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 
+// Coverage: up to 400 interior points, deterministic and scattered (a 3-D golden-ratio sequence
+// in the mesh's box), and how many of them lie within `radius` of a fibre point. Returns
+// {inside, covered}.
+std::pair<int, int> count_covered_points(const TriMesh& muscle, const MeshQuery& query,
+                                         const std::vector<Vec3>& fibre_pts, double radius) {
+  const Vec3 lo = muscle.V.colwise().minCoeff(), hi = muscle.V.colwise().maxCoeff();
+  int inside = 0, covered = 0;
+  for (int i = 0; inside < 400 && i < 20000; ++i) {
+    const Vec3 r(std::fmod(0.5 + i * 0.8191725133961645, 1.0),
+                 std::fmod(0.5 + i * 0.6710436067037893, 1.0),
+                 std::fmod(0.5 + i * 0.5497004779019703, 1.0));
+    const Vec3 p = lo + r.cwiseProduct(hi - lo);
+    if (!query.calc_is_inside(p)) continue;
+    ++inside;
+    double best = 1e300;
+    for (const Vec3& q : fibre_pts) best = std::min(best, (q - p).squaredNorm());
+    covered += std::sqrt(best) <= radius;
+  }
+  return {inside, covered};
+}
+
 }  // namespace
 
 class RealMuscle : public ::testing::TestWithParam<std::tuple<int, FibreMethod>> {};
@@ -196,20 +217,7 @@ TEST_P(RealMuscle, FibresSatisfyQualityInvariants) {
       const Points3 R = resample_polyline(P, 8 * static_cast<int>(P.rows()));
       for (Eigen::Index k = 0; k < R.rows(); ++k) fibre_pts.emplace_back(R.row(k));
     }
-    const Vec3 lo = muscle.V.colwise().minCoeff(), hi = muscle.V.colwise().maxCoeff();
-    int inside = 0, covered = 0;
-    for (int i = 0; inside < 400 && i < 20000; ++i) {
-      // Deterministic scattered points (3-D golden-ratio sequence).
-      const Vec3 r(std::fmod(0.5 + i * 0.8191725133961645, 1.0),
-                   std::fmod(0.5 + i * 0.6710436067037893, 1.0),
-                   std::fmod(0.5 + i * 0.5497004779019703, 1.0));
-      const Vec3 p = lo + r.cwiseProduct(hi - lo);
-      if (!query.calc_is_inside(p)) continue;
-      ++inside;
-      double best = 1e300;
-      for (const Vec3& q : fibre_pts) best = std::min(best, (q - p).squaredNorm());
-      covered += std::sqrt(best) <= radius;
-    }
+    const auto [inside, covered] = count_covered_points(muscle, query, fibre_pts, radius);
     std::printf("    coverage %.1f%% within %.1f mm\n", 100.0 * covered / inside, radius * 1e3);
     EXPECT_GE(static_cast<double>(covered) / inside, find_floor(c.name, method, "coverage", 0.95))
         << c.name;
@@ -321,19 +329,7 @@ TEST_P(WardFibreLength, MeanFibreLengthWithin25Percent) {
   }
   const double radius =
       1.5 * std::sqrt(calc_enclosed_volume(muscle) / mean / static_cast<double>(d.fibres.size()));
-  const Vec3 lo = muscle.V.colwise().minCoeff(), hi = muscle.V.colwise().maxCoeff();
-  int inside = 0, covered = 0;
-  for (int i = 0; inside < 400 && i < 20000; ++i) {
-    const Vec3 r(std::fmod(0.5 + i * 0.8191725133961645, 1.0),
-                 std::fmod(0.5 + i * 0.6710436067037893, 1.0),
-                 std::fmod(0.5 + i * 0.5497004779019703, 1.0));
-    const Vec3 p = lo + r.cwiseProduct(hi - lo);
-    if (!query.calc_is_inside(p)) continue;
-    ++inside;
-    double best = 1e300;
-    for (const Vec3& q : fibre_pts) best = std::min(best, (q - p).squaredNorm());
-    covered += std::sqrt(best) <= radius;
-  }
+  const auto [inside, covered] = count_covered_points(muscle, query, fibre_pts, radius);
   std::printf("    smooth %.0f%%, coverage %.1f%% within %.1f mm\n",
               100.0 * smooth / d.fibres.size(), 100.0 * covered / inside, radius * 1e3);
   EXPECT_GE(smooth, 0.9 * static_cast<double>(d.fibres.size())) << describe(w);
