@@ -127,8 +127,8 @@ struct FibresFirstOptions {
   // vertex against the opposite face's three particles with their barycentric weights); see
   // docs/representations.md, "Surface particles". Off by default: with separate_surfaces it
   // brings the VH shank's scene overlap from 8.3 mm to 0 at every frame (volume <= 2.7e-4,
-  // penetration 0) but costs about 17 ms CPU per frame against 8 ms (session 9, 2026-11-25;
-  // about 15 ms with stall_iterations = 4 below),
+  // penetration 0) but costs 14.6-14.8 ms CPU per frame against 7.3-7.5 ms (idle, session 9,
+  // 2026-11-25; 13.7-14.1 ms with stall_iterations = 4 below),
   // and on gait2392's generated bellies (frame 21) and on the synthetic leg of scene/demo.hpp
   // (frame 39 at 25 Hz) the separation fails the volume hold.
   bool surface_particles = false;

@@ -118,8 +118,9 @@ class TemplateMapper {
   // R2 rule of the attachment areas (set-up), and `count` of them are chosen by farthest-point
   // selection, the distance being that of their images in four slices (at 1/8, 3/8, 5/8, 7/8 of
   // the axis), starting from the candidate nearest the mean image. For count > 256 the stratified
-  // sample itself, in farthest-point order in the unit square (every prefix spread). The R2 sequence is uniform in the square, which the map stretches unevenly
-  // (crescent-shaped sections leave sparse horns), and is not evenly spaced at the periphery.
+  // sample itself, in farthest-point order in the unit square (every prefix spread). The R2
+  // sequence is uniform in the square, which the map stretches unevenly (crescent-shaped sections
+  // leave sparse horns), and is not evenly spaced at the periphery.
   std::vector<Vec2> calc_section_samples(int count) const;
 
   // Maps unit-cube fibres into the muscle (metres, mesh frame), re-routing end-to-end templates'
