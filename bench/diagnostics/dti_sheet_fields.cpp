@@ -15,7 +15,10 @@
 //      face (smoothed outward normal over 5 mm, nearest face point on the fibre's side) converges
 //      on the insertion side along e_l (the taper: fibres keep their angle to the face they arise
 //      from).
-// The traced default field's figure is printed for calibration: evaluated at the tracts, a field
+// Also per tenth: the tracts' mean unit-direction components along x_n (x made normal to e_l,
+// signed towards the insertion) and along the box's y made normal to e_l (sideways; for the TA,
+// +y points away from the MG), and C0 with alpha scaled by 0.7,
+// 1.3, 1.45 (overall). The traced default field's figure is printed for calibration: evaluated at the tracts, a field
 // scores 0.2-1.2 deg worse than its traced fibres (tract points the fibres do not reach are matched
 // to farther fibres). Not a benchmark: `build/bin/diag_dti_sheet_fields`.
 #include "fascicle/fibres/analysis.hpp"
@@ -133,6 +136,7 @@ void run(bool mg) {
   const VecX z = muscle.V * ez;
   const double z_hi = z.maxCoeff(), extent = z_hi - z.minCoeff();
   const Vec3 ex = areas.thickness_direction;
+  const Vec3 ey = ez.cross(ex).normalized();  // the box's y (ez towards the origin end)
   // Insertion sheet points: the MG's deep face vertices, the TA's interior aponeurosis.
   const Points3 sheet = mg ? select_rows(muscle.V, areas.face_plus) : areas.insertion_interior;
   const detail::PointIndex sheet_index(sheet);
@@ -153,7 +157,11 @@ void run(bool mg) {
     return Vec3(n.normalized());
   };
 
-  std::array<std::array<double, candidates + 1>, 11> sum{};  // last column: face convergence g
+  // Columns: the candidates, the face convergence g, the tract's components along x_n and sideways,
+  // C0 with alpha x 0.7, 1.3, 1.45.
+  constexpr int columns = candidates + 6;
+  const double scales[3] = {0.7, 1.3, 1.45};
+  std::array<std::array<double, columns>, 11> sum{};
   std::array<int, 11> n{};
   for (const Points3& T : tracts.fibres)
     for (Eigen::Index k = 1; k < T.rows(); ++k) {
@@ -189,28 +197,39 @@ void run(bool mg) {
       const Vec3 xp = (xs - xs.dot(el) * el).normalized();
       const double g = std::atan2(no.dot(el), -no.dot(xp));
       const double b4 = std::clamp(alpha + g, 0.0, 0.5 * M_PI);
-      const std::array<double, candidates + 1> e = {
+      Vec3 tu = tv.normalized();
+      if (tu.dot(el) < 0.0) tu = -tu;
+      const std::array<double, columns> e = {
           calc_line_angle(tv, with_e_l(xs, alpha)),
           calc_line_angle(tv, with_e_l(q - p, alpha)),
           calc_line_angle(tv, with_level_set(grad_c.row(ti))),
           calc_line_angle(tv, with_level_set(blended)),
           calc_line_angle(tv, with_e_l(xs, b4)),
-          g};
+          g,
+          tu.dot(xp),
+          tu.dot((ey - ey.dot(el) * el).normalized()),
+          calc_line_angle(tv, with_e_l(xs, scales[0] * alpha)),
+          calc_line_angle(tv, with_e_l(xs, scales[1] * alpha)),
+          calc_line_angle(tv, with_e_l(xs, scales[2] * alpha))};
       const int tenth = std::clamp(static_cast<int>((z_hi - p.dot(ez)) / extent * 10), 0, 9);
       for (int b : {tenth, 10}) {
-        for (int j = 0; j <= candidates; ++j) sum[b][j] += e[j];
+        for (int j = 0; j < columns; ++j) sum[b][j] += e[j];
         ++n[b];
       }
     }
   fmt::print("  {:<9} {:>6}", "", "n");
   for (const char* name : candidate_names) fmt::print(" | {:>26}", name);
-  fmt::print(" | face convergence g\n");
+  fmt::print(" | face convergence g | tract along x_n, sideways | C0 alpha x 0.7 / 1.3 / 1.45\n");
   for (int b = 0; b < 11; ++b) {
     if (n[b] == 0) continue;
+    const auto mean = [&](int j) { return sum[b][j] / n[b]; };
     fmt::print("  {:<9} {:6d}", b == 10 ? "all" : fmt::format("tenth {}", b + 1), n[b]);
-    for (int j = 0; j < candidates; ++j) fmt::print(" | {:26.1f}", sum[b][j] / n[b] * deg);
-    fmt::print(" | {:+.1f}\n", sum[b][candidates] / n[b] * deg);
+    for (int j = 0; j < candidates; ++j) fmt::print(" | {:26.1f}", mean(j) * deg);
+    fmt::print(" | {:+18.1f} | {:+14.3f} {:+9.3f} | {:5.1f} / {:4.1f} / {:4.1f}\n", mean(candidates) * deg,
+               mean(candidates + 1), mean(candidates + 2), mean(candidates + 3) * deg,
+               mean(candidates + 4) * deg, mean(candidates + 5) * deg);
   }
+  fmt::print("  sin(alpha) = {:.3f}\n", std::sin(alpha));
 }
 
 }  // namespace
