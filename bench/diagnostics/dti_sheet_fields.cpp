@@ -15,6 +15,9 @@
 //      face (smoothed outward normal over 5 mm, nearest face point on the fibre's side) converges
 //      on the insertion side along e_l (the taper: fibres keep their angle to the face they arise
 //      from).
+//   C5 sheet border (TA only; session 10's option): n = the direction to the nearest point of
+//      find_aponeurosis_border (the sheet's edge on its tendon side), b = alpha; printed with the
+//      field's own sideways component next to the tracts'.
 // Also per tenth: the tracts' mean unit-direction components along x_n (x made normal to e_l,
 // signed towards the insertion) and along the box's y made normal to e_l (sideways; for the TA,
 // +y points away from the MG), and C0 with alpha scaled by 0.7,
@@ -34,6 +37,7 @@
 #include <array>
 #include <cmath>
 #include <filesystem>
+#include <memory>
 #include <vector>
 
 using namespace fascicle;
@@ -42,10 +46,11 @@ namespace {
 
 const std::filesystem::path data = FASCICLE_DEFAULT_DATA_DIR;
 constexpr double deg = 180.0 / M_PI;
-constexpr int candidates = 5;
+constexpr int candidates = 6;
 const char* const candidate_names[candidates] = {"C0 thickness plane", "C1 towards the sheet",
                                                  "C2 crossing level sets", "C3 sheets' normals",
-                                                 "C4 origin-face convergence"};
+                                                 "C4 origin-face convergence",
+                                                 "C5 sheet border"};
 
 double calc_line_angle(const Vec3& a, const Vec3& b) {
   return std::acos(std::min(1.0, std::abs(a.normalized().dot(b.normalized()))));
@@ -159,7 +164,11 @@ void run(bool mg) {
 
   // Columns: the candidates, the face convergence g, the tract's components along x_n and sideways,
   // C0 with alpha x 0.7, 1.3, 1.45.
-  constexpr int columns = candidates + 6;
+  constexpr int columns = candidates + 7;
+  // C5: the TA's sheet border (the MG has no interior aponeurosis: column left at C0's value).
+  const Points3 border =
+      mg ? Points3(0, 3) : find_aponeurosis_border(muscle, areas.insertion_interior, ex);
+  const auto border_index = mg ? nullptr : std::make_unique<detail::PointIndex>(border);
   const double scales[3] = {0.7, 1.3, 1.45};
   std::array<std::array<double, columns>, 11> sum{};
   std::array<int, 11> n{};
@@ -199,18 +208,23 @@ void run(bool mg) {
       const double b4 = std::clamp(alpha + g, 0.0, 0.5 * M_PI);
       Vec3 tu = tv.normalized();
       if (tu.dot(el) < 0.0) tu = -tu;
+      const Vec3 sideways = (ey - ey.dot(el) * el).normalized();
+      const Vec3 d5 = mg ? with_e_l(xs, alpha)
+                         : with_e_l(Vec3(border.row(border_index->find_nearest(p).first)) - p, alpha);
       const std::array<double, columns> e = {
           calc_line_angle(tv, with_e_l(xs, alpha)),
           calc_line_angle(tv, with_e_l(q - p, alpha)),
           calc_line_angle(tv, with_level_set(grad_c.row(ti))),
           calc_line_angle(tv, with_level_set(blended)),
           calc_line_angle(tv, with_e_l(xs, b4)),
+          calc_line_angle(tv, d5),
           g,
           tu.dot(xp),
-          tu.dot((ey - ey.dot(el) * el).normalized()),
+          tu.dot(sideways),
           calc_line_angle(tv, with_e_l(xs, scales[0] * alpha)),
           calc_line_angle(tv, with_e_l(xs, scales[1] * alpha)),
-          calc_line_angle(tv, with_e_l(xs, scales[2] * alpha))};
+          calc_line_angle(tv, with_e_l(xs, scales[2] * alpha)),
+          d5.dot(sideways)};
       const int tenth = std::clamp(static_cast<int>((z_hi - p.dot(ez)) / extent * 10), 0, 9);
       for (int b : {tenth, 10}) {
         for (int j = 0; j < columns; ++j) sum[b][j] += e[j];
@@ -219,15 +233,17 @@ void run(bool mg) {
     }
   fmt::print("  {:<9} {:>6}", "", "n");
   for (const char* name : candidate_names) fmt::print(" | {:>26}", name);
-  fmt::print(" | face convergence g | tract along x_n, sideways | C0 alpha x 0.7 / 1.3 / 1.45\n");
+  fmt::print(" | face convergence g | tract along x_n, sideways | C0 alpha x 0.7 / 1.3 / 1.45 | "
+             "C5 sideways\n");
   for (int b = 0; b < 11; ++b) {
     if (n[b] == 0) continue;
     const auto mean = [&](int j) { return sum[b][j] / n[b]; };
     fmt::print("  {:<9} {:6d}", b == 10 ? "all" : fmt::format("tenth {}", b + 1), n[b]);
     for (int j = 0; j < candidates; ++j) fmt::print(" | {:26.1f}", mean(j) * deg);
-    fmt::print(" | {:+18.1f} | {:+14.3f} {:+9.3f} | {:5.1f} / {:4.1f} / {:4.1f}\n", mean(candidates) * deg,
-               mean(candidates + 1), mean(candidates + 2), mean(candidates + 3) * deg,
-               mean(candidates + 4) * deg, mean(candidates + 5) * deg);
+    fmt::print(" | {:+18.1f} | {:+14.3f} {:+9.3f} | {:5.1f} / {:4.1f} / {:4.1f} | {:+11.3f}\n",
+               mean(candidates) * deg, mean(candidates + 1), mean(candidates + 2),
+               mean(candidates + 3) * deg, mean(candidates + 4) * deg, mean(candidates + 5) * deg,
+               mean(candidates + 6));
   }
   fmt::print("  sin(alpha) = {:.3f}\n", std::sin(alpha));
 }
