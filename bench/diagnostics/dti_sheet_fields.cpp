@@ -19,11 +19,11 @@
 //      find_aponeurosis_border (the sheet's edge on its tendon side), b = alpha; printed with the
 //      field's own sideways component next to the tracts'.
 // Also per tenth: the tracts' mean unit-direction components along x_n (x made normal to e_l,
-// signed towards the insertion) and along the box's y made normal to e_l (sideways; for the TA,
-// +y points away from the MG), and C0 with alpha scaled by 0.7,
-// 1.3, 1.45 (overall). The traced default field's figure is printed for calibration: evaluated at the tracts, a field
-// scores 0.2-1.2 deg worse than its traced fibres (tract points the fibres do not reach are matched
-// to farther fibres). Not a benchmark: `build/bin/diag_dti_sheet_fields`.
+// signed towards the insertion) and along the box's y made normal to e_l (sideways; for the TA, +y
+// points away from the MG), and C0 with alpha scaled by 0.7, 1.3, 1.45 (overall). The traced
+// default field's figure is printed for calibration: evaluated at the tracts, a field scores
+// 0.2-1.2 deg worse than its traced fibres (tract points the fibres do not reach are matched to
+// farther fibres). Not a benchmark: `build/bin/diag_dti_sheet_fields`.
 #include "fascicle/fibres/analysis.hpp"
 #include "fascicle/fibres/decompose.hpp"
 #include "fascicle/fibres/harmonic.hpp"
@@ -154,7 +154,8 @@ void run(bool mg) {
     if (nx < -0.5) minus_rows.push_back(static_cast<int>(i));
     else if (nx > 0.5) plus_rows.push_back(static_cast<int>(i));
   }
-  const Points3 minus_pts = select_rows(faces.centroid, minus_rows), plus_pts = select_rows(faces.centroid, plus_rows);
+  const Points3 minus_pts = select_rows(faces.centroid, minus_rows);
+  const Points3 plus_pts = select_rows(faces.centroid, plus_rows);
   const detail::PointIndex minus_index(minus_pts), plus_index(plus_pts);
   const auto smooth_normal = [&](const Vec3& q) {
     Vec3 n = Vec3::Zero();

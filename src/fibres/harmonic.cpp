@@ -218,7 +218,8 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
     const auto target_index =
         targets ? std::make_unique<detail::PointIndex>(options.transverse_targets) : nullptr;
     const auto transverse = [&](const Vec3& g_across, const Vec3& g_u, const Vec3& p) -> Vec3 {
-      if (targets) return Vec3(options.transverse_targets.row(target_index->find_nearest(p).first)) - p;
+      if (targets)
+        return Vec3(options.transverse_targets.row(target_index->find_nearest(p).first)) - p;
       if (!fixed_plane) return g_across;
       if (faces_known) return plane_dir;
       return g_u.dot(plane_dir) < 0.0 ? Vec3(-plane_dir) : plane_dir;

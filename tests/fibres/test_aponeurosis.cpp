@@ -350,7 +350,8 @@ Points3 make_leaning_sheet(double lean) {
       pts.emplace_back(0.0, -8e-3 + 1e-3 * j + sheet_shift(z, lean), z);
     }
   Points3 P(static_cast<Eigen::Index>(pts.size()), 3);
-  for (std::size_t i = 0; i < pts.size(); ++i) P.row(static_cast<Eigen::Index>(i)) = pts[i].transpose();
+  for (std::size_t i = 0; i < pts.size(); ++i)
+    P.row(static_cast<Eigen::Index>(i)) = pts[i].transpose();
   return P;
 }
 
@@ -370,11 +371,14 @@ TEST(AponeurosisBorder, IsTheEdgeOnTheSideTheSheetLeansToDistally) {
     EXPECT_LT(worst, 1e-12) << "lean " << lean;
   }
   // Fewer bins: one point per bin still, on the same edge.
-  EXPECT_EQ(find_aponeurosis_border(m, make_leaning_sheet(4e-3), Vec3::UnitX(), Vec3::UnitZ(), 10).rows(), 10);
+  EXPECT_EQ(
+      find_aponeurosis_border(m, make_leaning_sheet(4e-3), Vec3::UnitX(), Vec3::UnitZ(), 10).rows(),
+      10);
   // No lean (the distal third centred): no tendon side, a clear error; so are too few bins,
   // too few points and a normal along the muscle's axis.
   EXPECT_THROW(find_aponeurosis_border(m, make_leaning_sheet(0.0), Vec3::UnitX()), Error);
-  EXPECT_THROW(find_aponeurosis_border(m, make_leaning_sheet(4e-3), Vec3::UnitX(), Vec3::UnitZ(), 1), Error);
+  EXPECT_THROW(
+      find_aponeurosis_border(m, make_leaning_sheet(4e-3), Vec3::UnitX(), Vec3::UnitZ(), 1), Error);
   EXPECT_THROW(find_aponeurosis_border(m, Points3::Zero(2, 3), Vec3::UnitX()), Error);
   EXPECT_THROW(find_aponeurosis_border(m, make_leaning_sheet(4e-3), Vec3::UnitZ()), Error);
 }

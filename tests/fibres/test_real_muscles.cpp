@@ -389,8 +389,8 @@ INSTANTIATE_TEST_SUITE_P(
 // fitted to the tracts; bench/fibres.cpp BM_DtiThicknessPennation / BM_DtiThicknessPlane /
 // BM_DtiSheetBorder). The thickness plane (session 9) measured MG 13.37, TA 13.62 degrees; the
 // gradient plane 14.15, 15.64; the TA turning towards TA_apo's tendon-side border (session 10,
-// volume seeds) 12.81. The target is 10 degrees: missed, so these bounds guard the best figures, not the
-// target.
+// volume seeds) 12.81. The target is 10 degrees: missed, so these bounds guard the best
+// figures, not the target.
 class DtiDirections : public ::testing::TestWithParam<int> {};
 
 TEST_P(DtiDirections, ThicknessPlaneBeatsTheGradientPlane) {
