@@ -475,8 +475,11 @@ void BM_DtiThicknessPennation(benchmark::State& state) {
   // fibre length (HarmonicOptions::fibre_length_m; harmonic variants only).
   const bool local_angle = state.range(3) == 1;
   // Optional fifth argument 1: the fibres turn in the plane of the thickness direction
-  // (HarmonicOptions::transverse_direction = the aponeurosis box's x; harmonic variants only).
+  // (HarmonicOptions::transverse_direction = the aponeurosis box's x; harmonic variants only);
+  // 2: towards the tendon-side border of the interior aponeurosis (session 10,
+  // HarmonicOptions::transverse_targets = find_aponeurosis_border; cases with an aponeurosis mesh).
   const bool thickness_plane = state.range(4) == 1;
+  const bool sheet_border = state.range(4) == 2;
   // Variant: 0 template pennate, 1 pennate field (angle to the line of action), 2 pennate field
   // with the angle to the aponeurosis level sets (HarmonicOptions::pennation_reference).
   const bool harmonic = state.range(1) >= 1;
@@ -509,6 +512,14 @@ void BM_DtiThicknessPennation(benchmark::State& state) {
     opt.harmonic.pennation_rad = alpha;
     if (local_angle) opt.harmonic.fibre_length_m = c.ward_m;
     if (thickness_plane) opt.harmonic.transverse_direction = areas.thickness_direction;
+    if (sheet_border) {
+      if (!c.aponeurosis) {
+        state.SkipWithError("the sheet border needs an interior aponeurosis mesh");
+        return;
+      }
+      opt.harmonic.transverse_targets =
+          find_aponeurosis_border(muscle, areas.insertion_interior, areas.thickness_direction);
+    }
     if (to_aponeurosis)
       opt.harmonic.pennation_reference = HarmonicOptions::PennationReference::aponeurosis;
   } else {
@@ -546,7 +557,7 @@ void BM_DtiThicknessPennation(benchmark::State& state) {
                  (!harmonic        ? " template pennate"
                   : to_aponeurosis ? " pennate-field (to aponeurosis)"
                                    : " pennate-field") +
-                 (thickness_plane ? ", thickness plane" : ""));
+                 (thickness_plane ? ", thickness plane" : sheet_border ? ", sheet border" : ""));
 }
 BENCHMARK(BM_DtiThicknessPennation)
     ->ArgsProduct({{5, 6}, {0, 1, 2}, {0}, {0}, {0}})
@@ -556,6 +567,20 @@ BENCHMARK(BM_DtiThicknessPennation)
 BENCHMARK(BM_DtiThicknessPennation)
     ->Name("BM_DtiThicknessPlane")
     ->ArgsProduct({{5, 6}, {1, 2}, {0}, {0}, {1}})
+    ->Iterations(1)
+    ->Unit(benchmark::kMillisecond);
+// The TA's fibres turning towards the tendon-side border of its central aponeurosis (session 10;
+// the MG has no interior aponeurosis: docs/fibres.md).
+BENCHMARK(BM_DtiThicknessPennation)
+    ->Name("BM_DtiSheetBorder")
+    ->ArgsProduct({{6}, {1, 2}, {0}, {0}, {2}})
+    ->Iterations(1)
+    ->Unit(benchmark::kMillisecond);
+// The held-out scale with the TA's sheet border (the MG keeps the thickness plane,
+// BM_DtiHeldOutScalePlane).
+BENCHMARK(BM_DtiThicknessPennation)
+    ->Name("BM_DtiHeldOutScaleBorder")
+    ->ArgsProduct({{6}, {1}, {100, 115, 130, 145, 160}, {0}, {2}})
     ->Iterations(1)
     ->Unit(benchmark::kMillisecond);
 // Held-out check of a tract-chosen correction: the thickness-derived angle scaled by 0.85 ... 1.45;

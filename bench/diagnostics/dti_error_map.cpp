@@ -7,7 +7,8 @@
 // separate the causes: the fibre with the tract's beta (its plane kept), and with the tract's phi
 // (its beta kept). Also the mean normal part of the tracts per tenth in the box frame (x the
 // thickness direction). Not a benchmark: `build/bin/diag_dti_error_map` prints tables for the
-// gradient and the thickness plane (HarmonicOptions::transverse_direction).
+// gradient and the thickness plane (HarmonicOptions::transverse_direction), and for the TA the
+// fibres turning towards its aponeurosis' tendon-side border (HarmonicOptions::transverse_targets).
 #include "fascicle/fibres/analysis.hpp"
 #include "fascicle/fibres/decompose.hpp"
 #include "fascicle/fibres/harmonic.hpp"
@@ -114,7 +115,12 @@ Setup make_setup(const Case& c) {
   return s;
 }
 
-void print_error_map(const Case& c, const Setup& s, bool thickness_plane) {
+// The plane the fibres turn in: grad(u), the box's thickness direction, or (interior aponeurosis
+// only) towards the sheet's tendon-side border (session 10).
+enum class Plane { gradient, thickness, sheet_border };
+
+void print_error_map(const Case& c, const Setup& s, Plane plane) {
+  const bool thickness_plane = plane == Plane::thickness;
   DecomposeOptions opt;
   opt.method = FibreMethod::harmonic;
   opt.count = 100;
@@ -122,10 +128,14 @@ void print_error_map(const Case& c, const Setup& s, bool thickness_plane) {
   opt.pennation_rad = s.alpha;
   opt.harmonic.pennation_rad = s.alpha;
   if (thickness_plane) opt.harmonic.transverse_direction = s.areas.thickness_direction;
+  if (plane == Plane::sheet_border)
+    opt.harmonic.transverse_targets = find_aponeurosis_border(
+        s.muscle, s.areas.insertion_interior, s.areas.thickness_direction);
   const Decomposition d = decompose_muscle(s.muscle, s.areas, opt);
   const FibreSet tracts = read_tracts(data / c.tracts, 1e-3);
   fmt::print("\n== {} pennate field, {} plane, alpha {:.1f} deg: mean {:.2f} deg\n", c.name,
-             thickness_plane ? "thickness" : "gradient", s.alpha * deg,
+             thickness_plane ? "thickness" : plane == Plane::sheet_border ? "sheet-border" : "gradient",
+             s.alpha * deg,
              compare_directions(d.fibres, tracts).mean_rad * deg);
   // The frame fields on the same tets: u (plain) and u_along (from the pennate field).
   const HarmonicField field = calc_harmonic_field(s.muscle, s.areas, opt.harmonic);
@@ -233,6 +243,7 @@ int main() {
   };
   for (const Case& c : cases) {
     const Setup s = make_setup(c);
-    for (const bool thickness_plane : {false, true}) print_error_map(c, s, thickness_plane);
+    for (const Plane plane : {Plane::gradient, Plane::thickness, Plane::sheet_border})
+      if (plane != Plane::sheet_border || c.aponeurosis) print_error_map(c, s, plane);
   }
 }

@@ -32,7 +32,9 @@ struct FibresArgs {
   double pennation_deg = 0.0;       // 0: fixed template rise
   std::string rise_crossing = "mean-thickness";  // or "mapped-crossing"
   std::string pennation_reference = "line";       // or "aponeurosis"
-  std::string pennation_plane;  // "" or "thickness" (the thickness plane), or "gradient"
+  // "" (default below), "thickness" (the thickness plane), "gradient", or "sheet-border" (towards
+  // the interior aponeurosis' tendon-side border)
+  std::string pennation_plane;
   std::string insertion_side;                     // mesh on the insertion (deep) side
   std::string aponeurosis;          // interior insertion aponeurosis mesh
 };
@@ -90,6 +92,10 @@ void run_fibres(const FibresArgs& a) {
     throw_usage("--pennation-reference aponeurosis needs --attachments aponeurosis and --method harmonic");
   if (!a.pennation_plane.empty() && (!aponeurosis_areas || opt.method != FibreMethod::harmonic))
     throw_usage("--pennation-plane needs --attachments aponeurosis and --method harmonic");
+  if (a.pennation_plane == "sheet-border" && a.aponeurosis.empty())
+    throw_usage("--pennation-plane sheet-border needs an interior aponeurosis (--aponeurosis)",
+                {.suggestion = "give the segmented aponeurosis mesh, or use --pennation-plane "
+                               "thickness"});
   if (a.rise_crossing == "mapped-crossing" && (opt.method != FibreMethod::template_map || !(a.pennation_deg > 0.0)))
     throw_usage("--rise-crossing mapped-crossing needs --method template and --pennation-deg");
   if (aponeurosis_areas && (!a.origin.empty() || !a.bones.empty()))
@@ -139,6 +145,16 @@ void run_fibres(const FibresArgs& a) {
       // thickness plane would replace their level sets by the box's plane.
       if (effective_pennation_plane(a) == "thickness")
         opt.harmonic.transverse_direction = areas.thickness_direction;
+      // Towards the border where the interior aponeurosis becomes its tendon (session 10: DTI TA
+      // 13.6 -> 12.6 deg; docs/fibres.md).
+      if (effective_pennation_plane(a) == "sheet-border") {
+        try {
+          opt.harmonic.transverse_targets = find_aponeurosis_border(
+              muscle, areas.insertion_interior, areas.thickness_direction, ao.origin_towards);
+        } catch (const Error& e) {
+          throw e.with_file(a.aponeurosis);
+        }
+      }
     }
   } else if (!a.origin.empty() || !a.insertion.empty()) {
     if (a.origin.empty() || a.insertion.empty())
@@ -225,9 +241,11 @@ void add_fibres_commands(CLI::App& app, Invocation& run) {
   cmd->add_option("--pennation-plane", args->pennation_plane,
                   "With --attachments aponeurosis --method harmonic: the plane the fibres turn in "
                   "away from the line of action, thickness (the aponeurosis box's thickness direction; "
-                  "default with --pennation-reference line) or gradient (the aponeurosis "
-                  "potential's gradient; default with --pennation-reference aponeurosis)")
-      ->check(CLI::IsMember({"thickness", "gradient"}));
+                  "default with --pennation-reference line), gradient (the aponeurosis "
+                  "potential's gradient; default with --pennation-reference aponeurosis) or "
+                  "sheet-border (towards the border where the --aponeurosis sheet becomes its "
+                  "tendon)")
+      ->check(CLI::IsMember({"thickness", "gradient", "sheet-border"}));
   cmd->add_option("--insertion-side", args->insertion_side,
                   "With --attachments aponeurosis: a mesh on the insertion aponeurosis' side (the "
                   "insertion face is the one towards its centroid; e.g. the tibia for the medial "

@@ -223,6 +223,67 @@ Vec3 calc_sheet_normal(const TriMesh& sheet) {
   return eig.eigenvectors().col(0);
 }
 
+Points3 find_aponeurosis_border(const TriMesh& muscle, const Points3& sheet,
+                                const Vec3& thickness_direction, const Vec3& origin_towards,
+                                int bins) {
+  if (sheet.rows() < 3) throw_bad_input("the aponeurosis has fewer than 3 points inside the muscle");
+  if (bins < 2) throw_usage("the aponeurosis border needs at least 2 bins along the muscle");
+  const Vec3 ez = calc_principal_axis(muscle, origin_towards);
+  Vec3 ex = thickness_direction - thickness_direction.dot(ez) * ez;
+  if (!(ex.norm() > 1e-6)) throw_usage("the sheet's normal is parallel to the muscle's principal axis");
+  ex.normalize();
+  const Vec3 ey = ez.cross(ex);
+  // s: distance from the sheet's origin-side end along the axis (the origin end is at +z).
+  const VecX z = sheet * ez, y = sheet * ey;
+  const double z_hi = z.maxCoeff(), extent = z_hi - z.minCoeff();
+  if (!(extent > 0.0)) throw_bad_input("the aponeurosis has no extent along the muscle's axis");
+  const auto bin_of = [&](double zv) {
+    return std::clamp(static_cast<int>((z_hi - zv) / extent * bins), 0, bins - 1);
+  };
+  // The side: the distal third's mean y against the whole sheet's; the width per bin for scale.
+  double y_all = 0.0, y_distal = 0.0;
+  int n_distal = 0;
+  std::vector<double> y_lo(bins, 1e300), y_hi(bins, -1e300);
+  for (Eigen::Index i = 0; i < sheet.rows(); ++i) {
+    y_all += y(i);
+    if (z_hi - z(i) >= 2.0 / 3.0 * extent) {
+      y_distal += y(i);
+      ++n_distal;
+    }
+    const int b = bin_of(z(i));
+    y_lo[b] = std::min(y_lo[b], y(i));
+    y_hi[b] = std::max(y_hi[b], y(i));
+  }
+  y_all /= static_cast<double>(sheet.rows());
+  double width = 0.0;
+  int used = 0;
+  for (int b = 0; b < bins; ++b)
+    if (y_hi[b] >= y_lo[b]) {
+      width += y_hi[b] - y_lo[b];
+      ++used;
+    }
+  width /= used;
+  const double shift = n_distal > 0 ? y_distal / n_distal - y_all : 0.0;
+  if (!(std::abs(shift) >= 0.02 * width))
+    throw_bad_input(fmt::format("the aponeurosis' distal third does not lean to either side (shift "
+                                "{:.3g} m for a mean width of {:.3g} m): no tendon side to turn to",
+                                shift, width),
+                    {.suggestion = "use the thickness plane (--pennation-plane thickness)"});
+  const double side = shift > 0.0 ? 1.0 : -1.0;
+  std::vector<int> best(bins, -1);
+  for (Eigen::Index i = 0; i < sheet.rows(); ++i) {
+    const int b = bin_of(z(i));
+    if (best[b] < 0 || side * y(i) > side * y(best[b])) best[b] = static_cast<int>(i);
+  }
+  std::vector<int> rows;
+  for (int b : best)
+    if (b >= 0) rows.push_back(b);
+  Points3 border(static_cast<Eigen::Index>(rows.size()), 3);
+  for (std::size_t i = 0; i < rows.size(); ++i)
+    border.row(static_cast<Eigen::Index>(i)) = sheet.row(rows[i]);
+  return border;
+}
+
 void set_interior_aponeurosis(const TriMesh& muscle, const TriMesh& aponeurosis,
                               Attachments& areas) {
   const MeshQuery query(muscle);

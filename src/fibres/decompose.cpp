@@ -62,6 +62,12 @@ Decomposition decompose_muscle(const TriMesh& muscle, const Attachments& areas,
     spdlog::warn("{}", d.warnings.back());
   }
   const HarmonicField field = calc_harmonic_field(muscle, areas, options.harmonic);
+  // Pennate fields start on the origin area, except those turning towards transverse targets
+  // (the sheet border, session 10): their fibres drift sideways, so seeds on the origin area leave
+  // the side away from the targets empty (Bolsterlee TA coverage 0.81); they start in the volume
+  // as plain fields do (0.98).
+  const bool origin_seeds =
+      options.harmonic.pennation_rad > 0.0 && options.harmonic.transverse_targets.rows() == 0;
   d.fibres = trace_harmonic_fibres(field, areas.origin,
                                    {.count = options.count,
                                     .resolution = options.resolution,
@@ -69,9 +75,8 @@ Decomposition decompose_muscle(const TriMesh& muscle, const Attachments& areas,
                                                           ? 0.99
                                                           : 1.0 - 1e-9,
                                     .end_on_boundary = options.harmonic.pennation_rad > 0.0,
-                                    .seeding = options.harmonic.pennation_rad > 0.0
-                                                   ? TraceOptions::Seeding::origin_area
-                                                   : options.harmonic_seeding,
+                                    .seeding = origin_seeds ? TraceOptions::Seeding::origin_area
+                                                            : options.harmonic_seeding,
                                     .seed_by_flux = options.harmonic_seed_by_flux,
                                     .area_seed_fraction = options.harmonic_area_seed_fraction,
                                     .candidate_factor = options.harmonic_candidate_factor,

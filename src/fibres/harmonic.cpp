@@ -16,6 +16,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <memory>
 
 namespace fascicle {
 
@@ -150,6 +151,8 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
   if (options.fibre_length_m < 0.0) throw_usage("the fibre length must not be negative");
   if (!options.transverse_direction.allFinite())
     throw_usage("the transverse direction of the pennate field must be finite");
+  if (!options.transverse_targets.allFinite())
+    throw_usage("the pennate field's transverse targets must be finite");
   HarmonicField field;
   field.surface = muscle;
   field.tets = calc_tet_mesh(muscle, options.tets);
@@ -211,16 +214,21 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
     // as given when both faces are known (unipennate areas: from the origin face towards the
     // insertion face everywhere), else signed the way grad(u) points (towards a central sheet
     // from either side).
-    const auto transverse = [&](const Vec3& g_across, const Vec3& g_u) -> Vec3 {
+    const bool targets = options.transverse_targets.rows() > 0;
+    const auto target_index =
+        targets ? std::make_unique<detail::PointIndex>(options.transverse_targets) : nullptr;
+    const auto transverse = [&](const Vec3& g_across, const Vec3& g_u, const Vec3& p) -> Vec3 {
+      if (targets)
+        return Vec3(options.transverse_targets.row(target_index->find_nearest(p).first)) - p;
       if (!fixed_plane) return g_across;
       if (faces_known) return plane_dir;
       return g_u.dot(plane_dir) < 0.0 ? Vec3(-plane_dir) : plane_dir;
     };
     const auto blend = [&](Points3& out, const Points3& across, const Points3& along,
-                           const Points3& crossing, const Points3& grad_u) {
+                           const Points3& crossing, const Points3& grad_u, const Points3& at) {
       for (Eigen::Index i = 0; i < out.rows(); ++i) {
         const Vec3 gl = along.row(i);
-        const Vec3 gt = transverse(across.row(i), grad_u.row(i));
+        const Vec3 gt = transverse(across.row(i), grad_u.row(i), at.row(i));
         double ca = ca_fixed, sa = sa_fixed;
         if (options.fibre_length_m > 0.0) {
           // Planimetric model with one fibre length L: a fibre crossing the local distance t
@@ -253,8 +261,12 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
       }
     };
     const Points3 tet_u = field.tet_gradient, vertex_u = field.vertex_gradient;
-    blend(field.tet_gradient, tet_across, tet_along, tet_crossing, tet_u);
-    blend(field.vertex_gradient, vertex_across, vertex_along, vertex_crossing, vertex_u);
+    Points3 centroids = Points3::Zero(field.tets.num_tets(), 3);
+    if (targets)
+      for (Eigen::Index t = 0; t < field.tets.num_tets(); ++t)
+        for (int k = 0; k < 4; ++k) centroids.row(t) += 0.25 * field.tets.V.row(field.tets.T(t, k));
+    blend(field.tet_gradient, tet_across, tet_along, tet_crossing, tet_u, centroids);
+    blend(field.vertex_gradient, vertex_across, vertex_along, vertex_crossing, vertex_u, field.tets.V);
   }
   return field;
 }

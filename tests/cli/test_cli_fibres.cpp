@@ -174,13 +174,14 @@ TEST(CliFibres, PennationAgainstTheAponeurosesWithTheInsertionOnTheDeepSide) {
 }
 
 TEST(CliFibres, PennationPlaneIsSelectable) {
-  // Bolsterlee TA: the pennate field turning in the thickness plane (default) or in the plane of
-  // the aponeurosis potential's gradient; the fibres differ, both within Ward's +-25 %.
+  // Bolsterlee TA: the pennate field turning in the thickness plane (default), in the plane of
+  // the aponeurosis potential's gradient, or towards TA_apo's tendon-side border (session 10); the
+  // fibres differ, all within Ward's +-25 %.
   const auto dir = fascicle::test::scratch_dir("cli_fibres_plane");
   const std::string apo = fascicle::test::data_path("bolsterlee_dti/TA_apo.stl").string();
-  double length[2] = {0.0, 0.0};
-  const char* planes[2] = {"thickness", "gradient"};
-  for (int i = 0; i < 2; ++i) {
+  double length[3] = {0.0, 0.0, 0.0};
+  const char* planes[3] = {"thickness", "gradient", "sheet-border"};
+  for (int i = 0; i < 3; ++i) {
     const auto json = (dir / (std::string(planes[i]) + ".json")).string();
     const FibresCliRun r = run_fibres_cli(
         "--mesh " + ta_mesh() + " --units mm --attachments aponeurosis --architecture bipennate "
@@ -196,6 +197,7 @@ TEST(CliFibres, PennationPlaneIsSelectable) {
     EXPECT_LT(length[i], 0.0683 * 1.25) << planes[i];
   }
   EXPECT_GT(std::abs(length[0] - length[1]), 1e-4);
+  EXPECT_GT(std::abs(length[0] - length[2]), 1e-4);
   // With the angle measured against the aponeuroses the default plane is their potential's
   // gradient (the thickness plane would replace their level sets by the box's plane).
   {
@@ -224,4 +226,10 @@ TEST(CliFibres, PennationPlaneIsSelectable) {
                      (dir / "f.vtp").string());
   EXPECT_EQ(r.code, 2) << r.out;
   EXPECT_NE(r.out.find("pennation-plane"), std::string::npos) << r.out;
+  // The sheet border needs the interior aponeurosis.
+  r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --attachments aponeurosis --architecture "
+                     "bipennate --pennation-deg 9.6 --method harmonic --pennation-plane sheet-border "
+                     "--out " + (dir / "f.vtp").string());
+  EXPECT_EQ(r.code, 2) << r.out;
+  EXPECT_NE(r.out.find("--aponeurosis"), std::string::npos) << r.out;
 }

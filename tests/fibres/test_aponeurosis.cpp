@@ -329,3 +329,103 @@ TEST(PennateHarmonicField, LocalAngleFollowsTheCrossingDistance) {
   EXPECT_LT(median(centre_error), 2.0 * M_PI / 180);
   EXPECT_LT(median(edge), median(centre) - 3.0 * M_PI / 180);
 }
+
+// find_aponeurosis_border (session 10): a sheet in the x = 0 plane of the slab, 16 mm wide, whose
+// distal third shifts sideways by up to 4 mm (as a central aponeurosis narrowing into its tendon
+// on one side). The border is the sheet's edge on that side, one point per bin.
+namespace {
+
+// Sheet points on a 1 mm grid, z from 0.05 (proximal, the origin end is +z) down to -0.05 m,
+// y in [-8, 8] mm + shift(s), s the distance from the proximal end over the extent.
+double sheet_shift(double z, double lean) {
+  const double s = (0.05 - z) / 0.10;
+  return s > 2.0 / 3.0 ? lean * (s - 2.0 / 3.0) * 3.0 : 0.0;
+}
+
+Points3 make_leaning_sheet(double lean) {
+  std::vector<Vec3> pts;
+  for (int i = 0; i <= 100; ++i)
+    for (int j = 0; j <= 16; ++j) {
+      const double z = 0.05 - 1e-3 * i;
+      pts.emplace_back(0.0, -8e-3 + 1e-3 * j + sheet_shift(z, lean), z);
+    }
+  Points3 P(static_cast<Eigen::Index>(pts.size()), 3);
+  for (std::size_t i = 0; i < pts.size(); ++i)
+    P.row(static_cast<Eigen::Index>(i)) = pts[i].transpose();
+  return P;
+}
+
+}  // namespace
+
+TEST(AponeurosisBorder, IsTheEdgeOnTheSideTheSheetLeansToDistally) {
+  const TriMesh m = make_slab();
+  for (const double lean : {4e-3, -4e-3}) {
+    const Points3 border = find_aponeurosis_border(m, make_leaning_sheet(lean), Vec3::UnitX());
+    ASSERT_EQ(border.rows(), 50);  // 101 rows of the grid in 50 bins: every bin holds points
+    const double side = lean > 0.0 ? 1.0 : -1.0;
+    double worst = 0.0;
+    for (Eigen::Index i = 0; i < border.rows(); ++i) {
+      const double z = border(i, 2);
+      worst = std::max(worst, std::abs(border(i, 1) - (side * 8e-3 + sheet_shift(z, lean))));
+    }
+    EXPECT_LT(worst, 1e-12) << "lean " << lean;
+  }
+  // Fewer bins: one point per bin still, on the same edge.
+  EXPECT_EQ(
+      find_aponeurosis_border(m, make_leaning_sheet(4e-3), Vec3::UnitX(), Vec3::UnitZ(), 10).rows(),
+      10);
+  // No lean (the distal third centred): no tendon side, a clear error; so are too few bins,
+  // too few points and a normal along the muscle's axis.
+  EXPECT_THROW(find_aponeurosis_border(m, make_leaning_sheet(0.0), Vec3::UnitX()), Error);
+  EXPECT_THROW(
+      find_aponeurosis_border(m, make_leaning_sheet(4e-3), Vec3::UnitX(), Vec3::UnitZ(), 1), Error);
+  EXPECT_THROW(find_aponeurosis_border(m, Points3::Zero(2, 3), Vec3::UnitX()), Error);
+  EXPECT_THROW(find_aponeurosis_border(m, make_leaning_sheet(4e-3), Vec3::UnitZ()), Error);
+}
+
+// HarmonicOptions::transverse_targets: the fibres turn towards the nearest target point (here a
+// line along z at x = 0, y = +12 mm in the bipennate slab) at the pennation angle, so they drift
+// towards it in y while keeping the angle to the axis.
+TEST(PennateHarmonicField, TransverseTargetsTurnTheFibresTowardsThem) {
+  const double alpha = 20.0 * M_PI / 180;
+  AponeurosisOptions o;
+  o.architecture = Architecture::bipennate;
+  o.pennation_rad = alpha;
+  o.thickness_direction = Vec3::UnitX();
+  const TriMesh m = make_slab();
+  const Attachments a = find_aponeurosis_attachments(m, o);
+  DecomposeOptions opt;
+  opt.method = FibreMethod::harmonic;
+  opt.count = 60;
+  opt.resolution = 12;
+  opt.harmonic.pennation_rad = alpha;
+  const double target_y = 12e-3;
+  Points3 targets(61, 3);
+  for (int i = 0; i <= 60; ++i) targets.row(i) = Vec3(0.0, target_y, -0.06 + 2e-3 * i).transpose();
+  opt.harmonic.transverse_targets = targets;
+  const Decomposition d = decompose_muscle(m, a, opt);
+  ASSERT_GE(d.fibres.size(), 55u);
+  std::vector<double> angles, drift;
+  int towards = 0;
+  for (const Points3& P : d.fibres.fibres) {
+    const Eigen::Index k = P.rows() / 2;
+    const Vec3 t = (P.row(k) - P.row(k - 1)).normalized();
+    angles.push_back(std::acos(std::abs(t.z())));
+    const double y0 = P(0, 1), y1 = P(P.rows() - 1, 1);
+    towards += std::abs(y1 - target_y) < std::abs(y0 - target_y);
+    drift.push_back((y1 - y0) * (target_y > y0 ? 1.0 : -1.0));
+  }
+  std::printf("median mid-fibre angle %.2f deg, %d of %zu fibres end nearer the target line in y, "
+              "median drift towards it %.2f mm\n",
+              median(angles) * 180 / M_PI, towards, d.fibres.size(), median(drift) * 1e3);
+  EXPECT_NEAR(median(angles), alpha, 2.0 * M_PI / 180);
+  EXPECT_GE(towards, static_cast<int>(0.9 * static_cast<double>(d.fibres.size())));
+  // Without targets the fibres turn towards the sheet and keep their y (0.01-0.13 mm, above).
+  EXPECT_GT(median(drift), 2e-3);
+  // Non-finite targets are a usage error.
+  HarmonicOptions h;
+  h.pennation_rad = alpha;
+  h.transverse_targets = targets;
+  h.transverse_targets(3, 1) = std::nan("");
+  EXPECT_THROW(calc_harmonic_field(m, a, h), Error);
+}

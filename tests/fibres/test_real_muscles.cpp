@@ -245,6 +245,7 @@ struct WardCase {
   bool pennate_field = true;  // harmonic: pennate field (else the plain field on the same areas)
   bool to_aponeurosis = false;  // pennate field: angle to the aponeurosis level sets
   bool thickness_plane = false;  // pennate field: fibres turn in the thickness-direction plane
+  bool sheet_border = false;  // pennate field: towards the interior aponeurosis' tendon-side border
 };
 
 std::string describe(const WardCase& w) {
@@ -252,7 +253,7 @@ std::string describe(const WardCase& w) {
          (w.architecture_aware ? " (architecture-aware)" : " (fixed rise)") +
          (w.method == FibreMethod::harmonic && !w.pennate_field ? " plain field" : "") +
          (w.to_aponeurosis ? " angle to aponeurosis" : "") +
-         (w.thickness_plane ? " thickness plane" : "");
+         (w.thickness_plane ? " thickness plane" : "") + (w.sheet_border ? " sheet border" : "");
 }
 
 }  // namespace
@@ -290,6 +291,9 @@ TEST_P(WardFibreLength, MeanFibreLengthWithin25Percent) {
       if (w.to_aponeurosis)
         opt.harmonic.pennation_reference = HarmonicOptions::PennationReference::aponeurosis;
       if (w.thickness_plane) opt.harmonic.transverse_direction = areas.thickness_direction;
+      if (w.sheet_border)
+        opt.harmonic.transverse_targets =
+            find_aponeurosis_border(muscle, areas.insertion_interior, areas.thickness_direction);
     }
   }
   const Decomposition d = decompose_muscle(muscle, areas, opt);
@@ -375,13 +379,18 @@ INSTANTIATE_TEST_SUITE_P(
         WardCase{0, kHarmonic, FibreTemplate::parallel, true, kUni, 28.3, true, false, true},
         WardCase{1, kHarmonic, FibreTemplate::parallel, true, kBi, 9.6, true, false, true},
         WardCase{4, kHarmonic, FibreTemplate::parallel, true, kUni, 20.5, true, false, true},
-        WardCase{6, kHarmonic, FibreTemplate::parallel, true, kBi, 9.6, true, false, true}));
+        WardCase{6, kHarmonic, FibreTemplate::parallel, true, kBi, 9.6, true, false, true},
+        // Bolsterlee TA turning towards the tendon-side border of TA_apo (session 10; the only
+        // muscle here with an interior aponeurosis mesh).
+        WardCase{6, kHarmonic, FibreTemplate::parallel, true, kBi, 9.6, true, false, false, true}));
 
 // DTI (issue 6): the mean angle between the Bolsterlee tracts and the nearest fibre of the pennate
 // field, the angle from the MRI muscle's thickness and Ward's length (alpha = asin(t_f / L), not
-// fitted to the tracts; bench/fibres.cpp BM_DtiThicknessPennation / BM_DtiThicknessPlane). The
-// thickness plane (session 9) measured MG 13.37, TA 13.62 degrees; the gradient plane 14.15, 15.64.
-// The issue's target is 10 degrees: missed, so these bounds guard the best figures, not the target.
+// fitted to the tracts; bench/fibres.cpp BM_DtiThicknessPennation / BM_DtiThicknessPlane /
+// BM_DtiSheetBorder). The thickness plane (session 9) measured MG 13.37, TA 13.62 degrees; the
+// gradient plane 14.15, 15.64; the TA turning towards TA_apo's tendon-side border (session 10,
+// volume seeds) 12.81. The issue's target is 10 degrees: missed, so these bounds guard the best
+// figures, not the target.
 class DtiDirections : public ::testing::TestWithParam<int> {};
 
 TEST_P(DtiDirections, ThicknessPlaneBeatsTheGradientPlane) {
@@ -406,8 +415,8 @@ TEST_P(DtiDirections, ThicknessPlaneBeatsTheGradientPlane) {
   if (!mg) set_interior_aponeurosis(muscle, apo, areas);
   const FibreSet tracts = read_tracts(
       test::data_path(mg ? "bolsterlee_dti/tracts_MG.txt" : "bolsterlee_dti/tracts_TA.txt"), 1e-3);
-  double mean_deg[2] = {0.0, 0.0};
-  for (int plane = 0; plane < 2; ++plane) {
+  double mean_deg[3] = {0.0, 0.0, 0.0};
+  for (int plane = 0; plane < (mg ? 2 : 3); ++plane) {
     DecomposeOptions opt;
     opt.method = FibreMethod::harmonic;
     opt.count = 100;
@@ -415,6 +424,9 @@ TEST_P(DtiDirections, ThicknessPlaneBeatsTheGradientPlane) {
     opt.pennation_rad = ao.pennation_rad;
     opt.harmonic.pennation_rad = ao.pennation_rad;
     if (plane == 1) opt.harmonic.transverse_direction = areas.thickness_direction;
+    if (plane == 2)
+      opt.harmonic.transverse_targets =
+          find_aponeurosis_border(muscle, areas.insertion_interior, areas.thickness_direction);
     const Decomposition d = decompose_muscle(muscle, areas, opt);
     mean_deg[plane] = compare_directions(d.fibres, tracts).mean_rad * 180 / M_PI;
   }
@@ -422,6 +434,10 @@ TEST_P(DtiDirections, ThicknessPlaneBeatsTheGradientPlane) {
               mg ? "MG" : "TA", ao.pennation_rad * 180 / M_PI, mean_deg[0], mean_deg[1]);
   EXPECT_LT(mean_deg[1], mg ? 13.6 : 13.9);
   EXPECT_LT(mean_deg[1], mean_deg[0] - 0.5);
+  if (mg) return;
+  std::printf("TA: DTI mean %.2f deg towards the aponeurosis' tendon-side border\n", mean_deg[2]);
+  EXPECT_LT(mean_deg[2], 13.0);
+  EXPECT_LT(mean_deg[2], mean_deg[1] - 0.5);
 }
 
 INSTANTIATE_TEST_SUITE_P(Fibres, DtiDirections, ::testing::Values(0, 1));

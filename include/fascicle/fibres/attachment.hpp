@@ -157,6 +157,20 @@ void set_interior_aponeurosis(const TriMesh& muscle, const TriMesh& aponeurosis,
 // e.g. an aponeurosis' thickness direction.
 Vec3 calc_sheet_normal(const TriMesh& sheet);
 
+// The border of an interior aponeurosis on the side where it becomes its tendon (docs/fibres.md,
+// "Session 10"), e.g. for HarmonicOptions::transverse_targets. Box as find_aponeurosis_attachments:
+// z the muscle's principal axis (origin end towards `origin_towards`), x = `thickness_direction`
+// (the sheet's normal), y = z x x. The tendon side is the sign of y towards which the sheet's
+// distal third lies from its mean (a sheet narrows into its tendon there, as the tibialis
+// anterior's central aponeurosis, whose tendon appears on the anterior surface distally); the
+// sheet points (metres, #N x 3) are binned along z over the sheet's own extent, and the border is,
+// per non-empty bin, the point farthest to that side. Throws bad_input for fewer than 3 points,
+// `bins` < 2, or a sheet whose distal third leans to neither side (shift below 2 % of its mean
+// width: no tendon side to turn to).
+Points3 find_aponeurosis_border(const TriMesh& muscle, const Points3& sheet,
+                                const Vec3& thickness_direction,
+                                const Vec3& origin_towards = Vec3::UnitZ(), int bins = 50);
+
 // `count` points spread over the area's triangles: an area-weighted R2 low-discrepancy sequence
 // (point i picks a triangle by its first coordinate, then a point in it by uniform mapping).
 Points3 calc_area_samples(const TriMesh& muscle, const AttachmentArea& area, int count);

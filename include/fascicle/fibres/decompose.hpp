@@ -32,8 +32,8 @@ struct DecomposeOptions {
   TemplateMapOptions mapping;
   HarmonicOptions harmonic;
   // Where the streamlines of plain harmonic fields (harmonic.pennation_rad == 0) start
-  // (TraceOptions::Seeding; docs/fibres.md compares them). Pennate fields always start on the
-  // origin area.
+  // (TraceOptions::Seeding; docs/fibres.md compares them). Pennate fields start on the origin
+  // area, except those with HarmonicOptions::transverse_targets, which use this seeding too.
   TraceOptions::Seeding harmonic_seeding = TraceOptions::Seeding::volume;
   bool harmonic_seed_by_flux = false;  // level-set seeds by flux instead of area
   double harmonic_area_seed_fraction = 0.0;  // TraceOptions::area_seed_fraction (volume seeding)

@@ -74,6 +74,13 @@ struct HarmonicOptions {
   // not the faces' level sets (the angle is measured against the box's plane); the CLI keeps the
   // gradient there unless asked. Zero: grad(u) (or the faces' potential), as before.
   Vec3 transverse_direction = Vec3::Zero();
+  // Non-empty (pennate fields; metres, #N x 3): points the fibres turn towards, e.g. the tendon-side
+  // border of an interior aponeurosis (find_aponeurosis_border). The transverse direction at a point
+  // is then the direction to the nearest of these points, made normal to e_l (resp. e_a); it
+  // replaces transverse_direction. For the tibialis anterior the DTI tracts approach the central
+  // aponeurosis and drift towards the side where it becomes the tendon, about equally
+  // (docs/fibres.md, "Session 10").
+  Points3 transverse_targets = Points3(0, 3);
 };
 
 // Tetrahedralises `muscle` and solves the field for the given attachment areas. An interior
