@@ -130,7 +130,8 @@ struct FibresFirstOptions {
   // penetration 0) but costs about 1.7x the default path's CPU time per frame (session 10, at
   // load 4-6: 13.2 ms against main's 15.9 ms with separation; idle, session 9: 14.6-14.8 ms
   // against 7.3-7.5 ms), and on gait2392's generated bellies the separation fails the volume hold
-  // at frame 42 (semimem_r; session 9: frame 21).
+  // at frame 42 (semimem_r; session 9: frame 21; the synthetic leg of scene/demo.hpp, which
+  // failed at frame 39 at 25 Hz in session 9, was not re-measured).
   bool surface_particles = false;
   int surface_anchor_count = 6;
   double surface_stiffness = 400.0;
