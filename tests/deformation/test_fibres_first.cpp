@@ -608,6 +608,52 @@ TEST(FibresFirst, SurfaceParticlesMoveRigidlyAndHoldVolume) {
   EXPECT_GT(solver.get_muscles()[0].surface_vertices.col(2).maxCoeff(), model.rest.col(2).maxCoeff() + 0.01);
 }
 
+// A bone contact kept across frames must not outlive its bone's neighbourhood: with display
+// surface separation (surface particles), a block pushed 4 mm into a bundle's side holds its
+// surface particles by bone contacts (kept from frame to frame); then the block jumps 40 mm along
+// its face, clear of the bundle. The contacts' target points moved with the block, 40 mm from
+// their particles: they are re-evaluated exactly, found outside the block and released. (Before,
+// the iterations pulled those particles toward the far targets, 100 x stiffer than the springs,
+// and the bundle was dragged 40 mm along with the block; on gait2392 such a stale contact's plane
+// made the final projection move a particle by 49 mm.)
+TEST(FibresFirst, BoneContactsFarFromTheirBoneAreReleased) {
+  const double L = 0.1;
+  const EndBones ends(L);
+  const MeshQuery block(moved(make_box(Vec3(0.01, 0.03, 0.01)), Vec3(0.016, 0.0, L / 2)));
+  FibreBundleSpec a{"pushed", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 3, 3, 0.004), 0, 1};
+  a.rest_surface = moved(make_box(Vec3(0.0055, 0.0055, L / 2)), Vec3(0, 0, L / 2));
+  FibreBundleSpec b{"aside", make_bundle(Vec3(-0.012, 0, 0), Vec3::UnitZ(), Vec3::UnitX(), L, 2, 2, 0.004), 0, 1};
+  b.rest_surface = moved(make_box(Vec3(0.0035, 0.0035, L / 2)), Vec3(-0.012, 0, L / 2));
+  FibresFirstOptions o;
+  o.surface_particles = true;
+  o.separate_surfaces = true;
+  const FibresFirstModel model = build_fibres_first_model({a, b}, {&ends.bottom, &ends.top, &block}, o);
+  FibresFirstSolver solver(model);
+  const Transform I = Transform::Identity();
+  for (int k = 1; k <= 4; ++k) solver.calc_frame({{I, I, translation(Vec3(-0.001 * k, 0, 0))}});
+  ASSERT_GT(solver.get_muscles()[0].bone_contacts, 0);
+  // the surface was really pushed in where the block is (its face at x = 2 mm, the rest surface
+  // at 5.5 mm)
+  {
+    const Points3& S = solver.get_muscles()[0].surface_vertices;
+    double facing = -1.0;
+    for (Eigen::Index v = 0; v < S.rows(); ++v)
+      if (std::abs(S(v, 2) - L / 2) < 0.008 && std::abs(S(v, 1)) < 0.003) facing = std::max(facing, S(v, 0));
+    EXPECT_GT(facing, 0.0);
+    EXPECT_LT(facing, 0.0025);
+  }
+  const Transform away = translation(Vec3(-0.004, 0.04, 0));
+  for (int k = 0; k < 2; ++k) solver.calc_frame({{I, I, away}});
+  const FibreBundleFrame& fr = solver.get_muscles()[0];
+  EXPECT_EQ(fr.bone_contacts, 0);
+  EXPECT_LT(fr.relative_volume_error, o.volume_tolerance);
+  // not dragged along: no particle moved more than 1 mm along the block's 40 mm jump (with the
+  // contacts kept, all of the held particles followed it by 40 mm)
+  const FibreBundle& m = model.muscles[0];
+  const Points3 rest = model.rest.middleRows(m.first_particle, m.num_particles);
+  EXPECT_LT((fr.particles - rest).col(1).cwiseAbs().maxCoeff(), 1e-3);
+}
+
 // A corner of a bundle pressed by two blocks at once (one moving in -x, one in -y): the corner
 // particles need two bone contacts; none ends inside either block.
 TEST(FibresFirst, ParticleNearTwoBonesStaysOutOfBoth) {

@@ -126,11 +126,12 @@ struct FibresFirstOptions {
   // separate_surfaces its contacts are particle targets of the global step, like bone contacts (a
   // vertex against the opposite face's three particles with their barycentric weights); see
   // docs/representations.md, "Surface particles". Off by default: with separate_surfaces it
-  // brings the VH shank's scene overlap from 8.3 mm to 0 at every frame (volume <= 2.7e-4,
-  // penetration 0) but costs 14.6-14.8 ms CPU per frame against 7.3-7.5 ms (idle, session 9,
-  // 2026-11-25; 13.7-14.1 ms with stall_iterations = 4 below),
-  // and on gait2392's generated bellies (frame 21) and on the synthetic leg of scene/demo.hpp
-  // (frame 39 at 25 Hz) the separation fails the volume hold.
+  // brings the VH shank's scene overlap from 8.3 mm to 0 at every frame (volume <= 3e-4,
+  // penetration 0) but costs about 1.7x the default path's CPU time per frame (session 10, at
+  // load 4-6: 13.2 ms against main's 15.9 ms with separation; idle, session 9: 14.6-14.8 ms
+  // against 7.3-7.5 ms), and on gait2392's generated bellies the separation fails the volume hold
+  // at frame 42 (semimem_r; session 9: frame 21; the synthetic leg of scene/demo.hpp, which
+  // failed at frame 39 at 25 Hz in session 9, was not re-measured).
   bool surface_particles = false;
   int surface_anchor_count = 6;
   double surface_stiffness = 400.0;
@@ -143,12 +144,14 @@ struct FibresFirstOptions {
   // with still moves.
   int max_iterations = 20;
   double step_tolerance = 3e-3;
-  // With separate_surfaces only (0: off, the default): a muscle whose step has not fallen below
-  // 0.9 x its smallest step of the round for this many iterations stops (as if converged; it
-  // iterates again when a neighbour wakes it). 4 takes the VH shank with separation from 16.4 to
-  // 14.8 ms CPU per frame, but gait2392 with separation then fails the volume hold at frame 12
-  // instead of 21, so it is opt-in. See docs/representations.md, "Stall rule".
-  int stall_iterations = 0;
+  // With separate_surfaces only (0: off): a muscle whose step has not fallen below 0.9 x its
+  // smallest step of the round for this many iterations stops (as if converged; it iterates again
+  // when a neighbour wakes it). Default 4 since session 10: it ends the creeping rounds of the VH
+  // shank (40 instead of 46 solves per frame), and with far bone contacts re-evaluated and the
+  // final projection's volume passes (docs/representations.md, "Session 10") gait2392 with
+  // separation runs to frame 42 with it and to frame 38 without it (before: 12 with, 21 without).
+  // See docs/representations.md, "Stall rule".
+  int stall_iterations = 4;
   // Anderson acceleration of the local/global iterations: number of previous iterates mixed
   // (0: plain projective dynamics).
   int anderson_window = 5;
@@ -280,10 +283,14 @@ struct FibreBundleFrame {
 struct FibresFirstInfo {
   int frame = -1;                 // frames solved so far - 1
   int iterations = 0;             // local/global iterations (all rounds)
+  int solves = 0;                 // muscle global steps (one per awake muscle and iteration)
   int contact_rounds = 0;
   int factorisations = 0;         // muscle systems factorised anew this frame
   int factor_updates = 0;         // muscle factors modified by low-rank updates this frame
   int volume_iterations = 0;      // final volume steps
+  // separate_surfaces: passes of the final projection's volume / surface / bone loop beyond the
+  // first (taken while some muscle's volume is off by more than volume_tolerance)
+  int final_passes = 0;
   // Stopping measure of the last local/global iteration: the largest particle displacement of
   // that iteration divided by the muscle's mean rest spring length (max over muscles).
   double residual = std::numeric_limits<double>::quiet_NaN();
