@@ -12,6 +12,7 @@
 #include <vtkIdList.h>
 #include <vtkDoubleArray.h>
 #include <vtkNew.h>
+#include <vtkObjectFactory.h>
 #include <vtkPointData.h>
 #include <vtkPoints.h>
 #include <vtkPolyData.h>
@@ -23,6 +24,7 @@
 #include <algorithm>
 #include <cstdint>
 #include <limits>
+#include <sstream>
 #include <string>
 
 namespace fascicle {
@@ -134,6 +136,25 @@ vtkNew<vtkCellArray> make_cells(std::vector<std::int32_t>&& offsets, std::vector
   return cells;
 }
 
+// vtkXMLPolyDataWriter writing into a stream given by the caller (vtkXMLWriter keeps its output
+// stream in the protected member `Stream`, takes a stream already set as its output and rewinds
+// it; the writer releases it after each Write()).
+class StreamPolyDataWriter : public vtkXMLPolyDataWriter {
+ public:
+  static StreamPolyDataWriter* New();
+  vtkTypeMacro(StreamPolyDataWriter, vtkXMLPolyDataWriter)
+  void set_stream(std::ostream* stream) { this->Stream = stream; }
+};
+vtkStandardNewMacro(StreamPolyDataWriter)
+
+// One encoding buffer per thread, kept between files: VTK's many small writes (and its seeks back
+// to fill in offsets) go into memory whose capacity is reused, instead of a fresh string stream
+// per file that grows by doubling and is then copied out twice (str(), GetOutputString()).
+std::string& get_encoding_buffer() {
+  thread_local std::string buffer;
+  return buffer;
+}
+
 }  // namespace
 
 void write_polydata(const std::filesystem::path& path, const PolyData& data) {
@@ -166,11 +187,14 @@ void write_polydata(const std::filesystem::path& path, const PolyData& data) {
 
   // VTK's XML writer encodes into memory (appended raw binary, LZ4); the file is then written in
   // one piece through a temporary and a rename, so no half-written file is ever left.
-  vtkNew<vtkXMLPolyDataWriter> writer;
+  std::string& buffer = get_encoding_buffer();
+  buffer.clear();
+  std::ostringstream stream(std::move(buffer), std::ios::out | std::ios::binary);
+  vtkNew<StreamPolyDataWriter> writer;
   VtkErrorLog log;
   log.observe(writer);
   writer->SetInputData(poly);
-  writer->WriteToOutputStringOn();
+  writer->set_stream(&stream);
   writer->SetDataModeToAppended();
   writer->EncodeAppendedDataOff();
   writer->SetHeaderTypeToUInt32();
@@ -181,8 +205,9 @@ void write_polydata(const std::filesystem::path& path, const PolyData& data) {
   if (writer->Write() != 1 || !log.text.empty())
     throw_bad_input("VTK could not encode the file: " + (log.text.empty() ? "unknown error" : log.text),
                     {.file = path.string(), .suggestion = "report this with the scene that produced it"});
-  const std::string& bytes = writer->GetOutputString();
-  write_file_atomically(path, [&](std::ostream& out) { out.write(bytes.data(), static_cast<std::streamsize>(bytes.size())); });
+  buffer = std::move(stream).str();
+  write_file_atomically(path, [&](std::ostream& out) { out.write(buffer.data(), static_cast<std::streamsize>(buffer.size())); });
+  if (buffer.capacity() > (std::size_t{64} << 20)) std::string().swap(buffer);  // not kept for a rare huge file
 }
 
 PolyData read_polydata(const std::filesystem::path& path) {
