@@ -157,7 +157,7 @@ std::string& get_encoding_buffer() {
 
 }  // namespace
 
-void write_polydata(const std::filesystem::path& path, const PolyData& data) {
+void write_polydata(const std::filesystem::path& path, const PolyData& data, VtpCompression compression) {
   check_polydata(data);
   if (data.points.rows() > std::numeric_limits<std::int32_t>::max() ||
       data.triangles.size() > std::numeric_limits<std::int32_t>::max())
@@ -185,7 +185,7 @@ void write_polydata(const std::filesystem::path& path, const PolyData& data) {
   for (const auto& f : data.point_fields) poly->GetPointData()->AddArray(to_vtk_array(f.name, f.values));
   for (const auto& f : data.cell_fields) poly->GetCellData()->AddArray(to_vtk_array(f.name, f.values));
 
-  // VTK's XML writer encodes into memory (appended raw binary, LZ4); the file is then written in
+  // VTK's XML writer encodes into memory (appended raw binary, LZ4 or none); the file is then written in
   // one piece through a temporary and a rename, so no half-written file is ever left.
   std::string& buffer = get_encoding_buffer();
   buffer.clear();
@@ -201,7 +201,10 @@ void write_polydata(const std::filesystem::path& path, const PolyData& data) {
   writer->SetIdTypeToInt32();
   // LZ4, not zlib: per-frame outputs are written every frame, and on a 60k-triangle bone VTK's
   // zlib takes ~13x longer than LZ4 for files ~1.6x smaller (ParaView >= 5.5 reads both).
-  writer->SetCompressorTypeToLZ4();
+  if (compression == VtpCompression::lz4)
+    writer->SetCompressorTypeToLZ4();
+  else
+    writer->SetCompressorTypeToNone();
   if (writer->Write() != 1 || !log.text.empty())
     throw_bad_input("VTK could not encode the file: " + (log.text.empty() ? "unknown error" : log.text),
                     {.file = path.string(), .suggestion = "report this with the scene that produced it"});
