@@ -43,8 +43,9 @@ void check_polydata(const PolyData& data);
 // (< 5 %), and there it only costs time. VTK's readers and ParaView read both.
 enum class VtpCompression { lz4, none };
 
-// Writes a .vtp: VTK encodes it in memory, then it goes into a temporary file that is renamed over
-// `path` on success (an error never leaves a partial file; the same input gives the same bytes).
+// Writes a .vtp: VTK encodes it into a buffer in memory (one per thread, reused from file to file),
+// then it goes into a temporary file that is renamed over `path` on success (an error never leaves
+// a partial file; the same input gives the same bytes).
 // Throws fascicle::Error (bad_input naming the path) when the folder is not writable or VTK
 // reports an error.
 void write_polydata(const std::filesystem::path& path, const PolyData& data,
