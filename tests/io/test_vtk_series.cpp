@@ -97,6 +97,36 @@ TEST(VtkSeries, PvdCollectionRoundTrip) {
   EXPECT_EQ(read[5].file, "frames/soleus_2.vtp");
 }
 
+// commit() keeps the text of the datasets it has written and appends the new ones: after every
+// commit the file has exactly the bytes write_pvd gives for the same datasets (escaped names too).
+TEST(VtkSeries, IncrementalCommitsGiveTheBytesOfWritePvd) {
+  const fs::path dir = test::scratch_dir("pvd_incremental");
+  const auto read_bytes = [](const fs::path& p) {
+    std::ifstream in(p, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  VtkSeriesWriter series(dir / "run.pvd");
+  const int a = series.find_or_add_part("bone_a&b");
+  const int b = series.find_or_add_part("muscle \"<x>\"");
+  series.commit();  // no dataset yet
+  write_pvd(dir / "reference.pvd", series.get_datasets());
+  EXPECT_EQ(read_bytes(dir / "run.pvd"), read_bytes(dir / "reference.pvd"));
+  for (int f = 0; f < 4; ++f) {
+    series.add(0.1 * f, a, "frames/a_" + std::to_string(f) + ".vtp");
+    if (f != 2) series.add(0.1 * f, b, "frames/b&_" + std::to_string(f) + ".vtp");
+    series.commit();
+    write_pvd(dir / "reference.pvd", series.get_datasets());
+    EXPECT_EQ(read_bytes(dir / "run.pvd"), read_bytes(dir / "reference.pvd")) << f;
+  }
+  series.commit();  // nothing new: same file
+  EXPECT_EQ(read_bytes(dir / "run.pvd"), read_bytes(dir / "reference.pvd"));
+  const auto read = read_pvd(dir / "run.pvd");
+  ASSERT_EQ(read.size(), 7u);
+  EXPECT_EQ(read[1].name, "muscle \"<x>\"");
+  EXPECT_EQ(read[6].file, "frames/b&_3.vtp");
+  EXPECT_EQ(read[6].time_s, 0.1 * 3);
+}
+
 TEST(VtkSeries, ReadingGarbageIsBadInput) {
   const fs::path dir = test::scratch_dir("pvd_garbage");
   std::ofstream(dir / "x.pvd") << "<VTKFile type=\"PolyData\"></VTKFile>";
