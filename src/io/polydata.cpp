@@ -185,8 +185,8 @@ void write_polydata(const std::filesystem::path& path, const PolyData& data, Vtp
   for (const auto& f : data.point_fields) poly->GetPointData()->AddArray(to_vtk_array(f.name, f.values));
   for (const auto& f : data.cell_fields) poly->GetCellData()->AddArray(to_vtk_array(f.name, f.values));
 
-  // VTK's XML writer encodes into memory (appended raw binary, LZ4 or none); the file is then written in
-  // one piece through a temporary and a rename, so no half-written file is ever left.
+  // VTK's XML writer encodes into memory (appended raw binary, LZ4 or none); the file is then
+  // written in one piece through a temporary and a rename, so no half-written file is ever left.
   std::string& buffer = get_encoding_buffer();
   buffer.clear();
   std::ostringstream stream(std::move(buffer), std::ios::out | std::ios::binary);

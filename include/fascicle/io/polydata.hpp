@@ -1,7 +1,7 @@
 // PolyData: points with triangles and/or polylines plus named point and cell fields, written as a
 // VTK XML PolyData file (.vtp) by VTK's own vtkXMLPolyDataWriter (appended raw binary, LZ4 or
-// uncompressed, UInt32 block headers, Int32 connectivity and offsets), as ParaView reads it. Used for the per-frame
-// outputs: bones, muscle surfaces, fibres, action lines.
+// uncompressed, UInt32 block headers, Int32 connectivity and offsets), as ParaView reads it. Used
+// for the per-frame outputs: bones, muscle surfaces, fibres, action lines.
 #pragma once
 
 #include "fascicle/core/types.hpp"
