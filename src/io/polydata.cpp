@@ -12,6 +12,7 @@
 #include <vtkIdList.h>
 #include <vtkDoubleArray.h>
 #include <vtkNew.h>
+#include <vtkObjectFactory.h>
 #include <vtkPointData.h>
 #include <vtkPoints.h>
 #include <vtkPolyData.h>
@@ -23,6 +24,7 @@
 #include <algorithm>
 #include <cstdint>
 #include <limits>
+#include <sstream>
 #include <string>
 
 namespace fascicle {
@@ -134,9 +136,28 @@ vtkNew<vtkCellArray> make_cells(std::vector<std::int32_t>&& offsets, std::vector
   return cells;
 }
 
+// vtkXMLPolyDataWriter writing into a stream given by the caller (vtkXMLWriter keeps its output
+// stream in the protected member `Stream`, takes a stream already set as its output and rewinds
+// it; the writer releases it after each Write()).
+class StreamPolyDataWriter : public vtkXMLPolyDataWriter {
+ public:
+  static StreamPolyDataWriter* New();
+  vtkTypeMacro(StreamPolyDataWriter, vtkXMLPolyDataWriter)
+  void set_stream(std::ostream* stream) { this->Stream = stream; }
+};
+vtkStandardNewMacro(StreamPolyDataWriter)
+
+// One encoding buffer per thread, kept between files: VTK's many small writes (and its seeks back
+// to fill in offsets) go into memory whose capacity is reused, instead of a fresh string stream
+// per file that grows by doubling and is then copied out twice (str(), GetOutputString()).
+std::string& get_encoding_buffer() {
+  thread_local std::string buffer;
+  return buffer;
+}
+
 }  // namespace
 
-void write_polydata(const std::filesystem::path& path, const PolyData& data) {
+void write_polydata(const std::filesystem::path& path, const PolyData& data, VtpCompression compression) {
   check_polydata(data);
   if (data.points.rows() > std::numeric_limits<std::int32_t>::max() ||
       data.triangles.size() > std::numeric_limits<std::int32_t>::max())
@@ -164,25 +185,32 @@ void write_polydata(const std::filesystem::path& path, const PolyData& data) {
   for (const auto& f : data.point_fields) poly->GetPointData()->AddArray(to_vtk_array(f.name, f.values));
   for (const auto& f : data.cell_fields) poly->GetCellData()->AddArray(to_vtk_array(f.name, f.values));
 
-  // VTK's XML writer encodes into memory (appended raw binary, LZ4); the file is then written in
-  // one piece through a temporary and a rename, so no half-written file is ever left.
-  vtkNew<vtkXMLPolyDataWriter> writer;
+  // VTK's XML writer encodes into memory (appended raw binary, LZ4 or none); the file is then
+  // written in one piece through a temporary and a rename, so no half-written file is ever left.
+  std::string& buffer = get_encoding_buffer();
+  buffer.clear();
+  std::ostringstream stream(std::move(buffer), std::ios::out | std::ios::binary);
+  vtkNew<StreamPolyDataWriter> writer;
   VtkErrorLog log;
   log.observe(writer);
   writer->SetInputData(poly);
-  writer->WriteToOutputStringOn();
+  writer->set_stream(&stream);
   writer->SetDataModeToAppended();
   writer->EncodeAppendedDataOff();
   writer->SetHeaderTypeToUInt32();
   writer->SetIdTypeToInt32();
   // LZ4, not zlib: per-frame outputs are written every frame, and on a 60k-triangle bone VTK's
   // zlib takes ~13x longer than LZ4 for files ~1.6x smaller (ParaView >= 5.5 reads both).
-  writer->SetCompressorTypeToLZ4();
+  if (compression == VtpCompression::lz4)
+    writer->SetCompressorTypeToLZ4();
+  else
+    writer->SetCompressorTypeToNone();
   if (writer->Write() != 1 || !log.text.empty())
     throw_bad_input("VTK could not encode the file: " + (log.text.empty() ? "unknown error" : log.text),
                     {.file = path.string(), .suggestion = "report this with the scene that produced it"});
-  const std::string& bytes = writer->GetOutputString();
-  write_file_atomically(path, [&](std::ostream& out) { out.write(bytes.data(), static_cast<std::streamsize>(bytes.size())); });
+  buffer = std::move(stream).str();
+  write_file_atomically(path, [&](std::ostream& out) { out.write(buffer.data(), static_cast<std::streamsize>(buffer.size())); });
+  if (buffer.capacity() > (std::size_t{64} << 20)) std::string().swap(buffer);  // not kept for a rare huge file
 }
 
 PolyData read_polydata(const std::filesystem::path& path) {

@@ -11,7 +11,10 @@
 
 namespace fascicle {
 
-void write_pvd(const std::filesystem::path& path, const std::vector<PvdDataSet>& datasets) {
+namespace {
+
+// The collection document with the given datasets (pugixml).
+pugi::xml_document make_pvd_document(const std::vector<PvdDataSet>& datasets) {
   pugi::xml_document doc;
   auto decl = doc.append_child(pugi::node_declaration);
   decl.append_attribute("version") = "1.0";
@@ -31,7 +34,16 @@ void write_pvd(const std::filesystem::path& path, const std::vector<PvdDataSet>&
     node.append_attribute("name") = d.name.c_str();
     node.append_attribute("file") = d.file.c_str();
   }
-  write_file_atomically(path, [&](std::ostream& out) { doc.save(out, "  "); });
+  return doc;
+}
+
+constexpr const char* kIndent = "  ";
+
+}  // namespace
+
+void write_pvd(const std::filesystem::path& path, const std::vector<PvdDataSet>& datasets) {
+  const pugi::xml_document doc = make_pvd_document(datasets);
+  write_file_atomically(path, [&](std::ostream& out) { doc.save(out, kIndent); });
 }
 
 std::vector<PvdDataSet> read_pvd(const std::filesystem::path& path) {
@@ -71,6 +83,38 @@ void VtkSeriesWriter::add(double time_s, int part, const std::string& relative_f
   datasets_.push_back({time_s, part, parts_[part], relative_file});
 }
 
-void VtkSeriesWriter::commit() const { write_pvd(pvd_path_, datasets_); }
+// The .pvd as write_pvd() formats it, without rebuilding and reformatting every dataset of the
+// earlier frames at each commit (that grew with the square of the frame count: ≈ 0.12 s for 100
+// frames of 22 files): the DataSet elements added since the last commit are printed by pugixml at
+// their depth in the document and appended to the text of the earlier ones; the text around them
+// is pugixml's own, taken once from a document holding one DataSet.
+void VtkSeriesWriter::commit() const {
+  if (datasets_.empty()) {  // pugixml writes an empty Collection as one element
+    write_pvd(pvd_path_, datasets_);
+    return;
+  }
+  if (head_.empty()) {
+    const pugi::xml_document doc = make_pvd_document({PvdDataSet{}});
+    std::ostringstream whole, one;
+    doc.save(whole, kIndent);
+    doc.child("VTKFile").child("Collection").first_child().print(one, kIndent, pugi::format_default,
+                                                                  pugi::encoding_auto, 2);
+    const std::string text = whole.str();
+    const std::size_t at = text.find(one.str());
+    if (at == std::string::npos) throw_internal("VtkSeriesWriter: unexpected .pvd layout");
+    head_ = text.substr(0, at);
+    tail_ = text.substr(at + one.str().size());
+  }
+  if (printed_ < datasets_.size()) {
+    const std::vector<PvdDataSet> added(datasets_.begin() + static_cast<std::ptrdiff_t>(printed_), datasets_.end());
+    const pugi::xml_document doc = make_pvd_document(added);
+    std::ostringstream text;
+    for (const auto node : doc.child("VTKFile").child("Collection").children())
+      node.print(text, kIndent, pugi::format_default, pugi::encoding_auto, 2);
+    body_ += text.str();
+    printed_ = datasets_.size();
+  }
+  write_file_atomically(pvd_path_, [&](std::ostream& out) { out << head_ << body_ << tail_; });
+}
 
 }  // namespace fascicle

@@ -62,10 +62,15 @@ class ParaViewWriter final : public FrameWriter {
       std::string rel;  // file, relative to the output folder
       PolyData data;
       bool write = true;
+      VtpCompression compression = VtpCompression::lz4;
     };
     std::vector<Part> parts;
-    const auto write = [&](const std::string& part_name, const std::string& file, PolyData d) {
-      parts.push_back({part_name, frames_dir_ + "/" + file, std::move(d)});
+    // LZ4 only where a file has a field that repeats (the force, one value over all cells of a
+    // surface or all fibres); bones and action lines are stored raw (LZ4 gained < 2 % on a bone's
+    // triangle ids and nothing on its coordinates).
+    const auto write = [&](const std::string& part_name, const std::string& file, PolyData d,
+                           VtpCompression compression = VtpCompression::lz4) {
+      parts.push_back({part_name, frames_dir_ + "/" + file, std::move(d), true, compression});
     };
     // A bone that has not moved since its last file is listed again with that file (a fixed
     // shank is written once, not once per frame).
@@ -82,7 +87,7 @@ class ParaViewWriter final : public FrameWriter {
       PolyData d;
       d.points = transform_points(X, body.mesh.V);
       d.triangles = body.mesh.F;
-      write("bone_" + body.name, frame_file("bone", body.name, frame), std::move(d));
+      write("bone_" + body.name, frame_file("bone", body.name, frame), std::move(d), VtpCompression::none);
       last = {X, parts.back().rel};
     }
     for (size_t m = 0; m < model.muscles.size(); ++m) {
@@ -107,7 +112,7 @@ class ParaViewWriter final : public FrameWriter {
         d.point_fields.push_back({"body_index", body});
         d.cell_fields.push_back({"tendon_force_N", MatX::Constant(1, 1, force)});
         d.cell_fields.push_back({"musculotendon_length_m", MatX::Constant(1, 1, mf.musculotendon_length_m)});
-        write("action_line_" + muscle.name, frame_file("action_line", muscle.name, frame), d);
+        write("action_line_" + muscle.name, frame_file("action_line", muscle.name, frame), d, VtpCompression::none);
       }
       if (!mf.fibres.empty()) {
         PolyData d;
@@ -142,7 +147,7 @@ class ParaViewWriter final : public FrameWriter {
       }
     }
     parallel_for(parts.size(), [&](std::size_t i) {
-      if (parts[i].write) write_polydata(folder_ / parts[i].rel, parts[i].data);
+      if (parts[i].write) write_polydata(folder_ / parts[i].rel, parts[i].data, parts[i].compression);
     });
     for (const Part& p : parts) series_->add(state.time_s, series_->find_or_add_part(p.name), p.rel);
     // The collection lists only complete frames: rewrite it after each frame.

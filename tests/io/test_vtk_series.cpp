@@ -97,6 +97,36 @@ TEST(VtkSeries, PvdCollectionRoundTrip) {
   EXPECT_EQ(read[5].file, "frames/soleus_2.vtp");
 }
 
+// commit() keeps the text of the datasets it has written and appends the new ones: after every
+// commit the file has exactly the bytes write_pvd gives for the same datasets (escaped names too).
+TEST(VtkSeries, IncrementalCommitsGiveTheBytesOfWritePvd) {
+  const fs::path dir = test::scratch_dir("pvd_incremental");
+  const auto read_bytes = [](const fs::path& p) {
+    std::ifstream in(p, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  VtkSeriesWriter series(dir / "run.pvd");
+  const int a = series.find_or_add_part("bone_a&b");
+  const int b = series.find_or_add_part("muscle \"<x>\"");
+  series.commit();  // no dataset yet
+  write_pvd(dir / "reference.pvd", series.get_datasets());
+  EXPECT_EQ(read_bytes(dir / "run.pvd"), read_bytes(dir / "reference.pvd"));
+  for (int f = 0; f < 4; ++f) {
+    series.add(0.1 * f, a, "frames/a_" + std::to_string(f) + ".vtp");
+    if (f != 2) series.add(0.1 * f, b, "frames/b&_" + std::to_string(f) + ".vtp");
+    series.commit();
+    write_pvd(dir / "reference.pvd", series.get_datasets());
+    EXPECT_EQ(read_bytes(dir / "run.pvd"), read_bytes(dir / "reference.pvd")) << f;
+  }
+  series.commit();  // nothing new: same file
+  EXPECT_EQ(read_bytes(dir / "run.pvd"), read_bytes(dir / "reference.pvd"));
+  const auto read = read_pvd(dir / "run.pvd");
+  ASSERT_EQ(read.size(), 7u);
+  EXPECT_EQ(read[1].name, "muscle \"<x>\"");
+  EXPECT_EQ(read[6].file, "frames/b&_3.vtp");
+  EXPECT_EQ(read[6].time_s, 0.1 * 3);
+}
+
 TEST(VtkSeries, ReadingGarbageIsBadInput) {
   const fs::path dir = test::scratch_dir("pvd_garbage");
   std::ofstream(dir / "x.pvd") << "<VTKFile type=\"PolyData\"></VTKFile>";
@@ -112,7 +142,8 @@ TEST(VtkSeries, ReadingGarbageIsBadInput) {
 }
 
 // Large arrays span several 32 KiB compression blocks (one of them exactly 8 full blocks): every
-// value comes back bit for bit through VTK's reader, and writing twice gives the same bytes.
+// value comes back bit for bit through VTK's reader, compressed (LZ4) or not, and writing twice
+// gives the same bytes.
 TEST(VtkSeries, LargeArraysRoundTripExactlyAndBytesAreDeterministic) {
   const fs::path dir = test::scratch_dir("vtp_large");
   PolyData d = make_polydata(make_icosphere(0.05, 5));  // 10242 points, 20480 triangles
@@ -126,9 +157,17 @@ TEST(VtkSeries, LargeArraysRoundTripExactlyAndBytesAreDeterministic) {
   exact.points = Points3::Random(32768, 3);
   for (int k = 0; k < 32768; k += 2) exact.lines.push_back({k, k + 1});
   exact.cell_fields = {{"weird <&\"> name", VecX::LinSpaced(16384, -1.0, 1.0)}};
+  const auto read_bytes = [](const fs::path& p) {
+    std::ifstream in(p, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  for (const VtpCompression compression : {VtpCompression::lz4, VtpCompression::none})
   for (const auto& [name, data] : {std::pair{"large", d}, std::pair{"exact", exact}}) {
-    const fs::path file = dir / (std::string(name) + ".vtp");
-    write_polydata(file, data);
+    const fs::path file = dir / (std::string(name) + (compression == VtpCompression::lz4 ? "_lz4" : "_raw") + ".vtp");
+    write_polydata(file, data, compression);
+    const std::string header = read_bytes(file).substr(0, 300);
+    EXPECT_EQ(header.find("compressor=\"vtkLZ4DataCompressor\"") != std::string::npos,
+              compression == VtpCompression::lz4) << header;
     const PolyData r = read_polydata(file);
     ASSERT_EQ(r.points.rows(), data.points.rows()) << name;
     EXPECT_EQ(r.points, data.points) << name;
@@ -144,12 +183,29 @@ TEST(VtkSeries, LargeArraysRoundTripExactlyAndBytesAreDeterministic) {
       EXPECT_EQ(r.cell_fields[f].name, data.cell_fields[f].name);
       EXPECT_EQ(r.cell_fields[f].values, data.cell_fields[f].values) << name;
     }
-    const auto read_bytes = [](const fs::path& p) {
-      std::ifstream in(p, std::ios::binary);
-      return std::string(std::istreambuf_iterator<char>(in), {});
-    };
     const std::string first = read_bytes(file);
-    write_polydata(file, data);
+    write_polydata(file, data, compression);
     EXPECT_EQ(read_bytes(file), first) << name;
   }
+  // the constant force field is what LZ4 gains on; the raw file holds every byte
+  EXPECT_LT(fs::file_size(dir / "large_lz4.vtp") + 20480 * 8 * 9 / 10, fs::file_size(dir / "large_raw.vtp"));
+}
+
+// The encoding buffer is reused from file to file (per thread): a small file written after a
+// large one has exactly the bytes it has when written first, and is read back whole.
+TEST(VtkSeries, SmallFileAfterLargeOneHasTheSameBytes) {
+  const fs::path dir = test::scratch_dir("vtp_reuse");
+  const auto read_bytes = [](const fs::path& p) {
+    std::ifstream in(p, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  const PolyData small = make_sample();
+  write_polydata(dir / "small_first.vtp", small);
+  PolyData large = make_polydata(make_icosphere(0.05, 5));
+  large.point_fields = {{"x", large.points.col(0)}};
+  write_polydata(dir / "large.vtp", large, VtpCompression::none);
+  write_polydata(dir / "small_after.vtp", small);
+  EXPECT_GT(fs::file_size(dir / "large.vtp"), 10 * fs::file_size(dir / "small_first.vtp"));
+  EXPECT_EQ(read_bytes(dir / "small_after.vtp"), read_bytes(dir / "small_first.vtp"));
+  EXPECT_EQ(read_polydata(dir / "small_after.vtp").points, small.points);
 }

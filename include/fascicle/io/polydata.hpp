@@ -1,7 +1,7 @@
 // PolyData: points with triangles and/or polylines plus named point and cell fields, written as a
-// VTK XML PolyData file (.vtp) by VTK's own vtkXMLPolyDataWriter (appended raw binary, LZ4, UInt32
-// block headers, Int32 connectivity and offsets), as ParaView reads it. Used for the per-frame
-// outputs: bones, muscle surfaces, fibres, action lines.
+// VTK XML PolyData file (.vtp) by VTK's own vtkXMLPolyDataWriter (appended raw binary, LZ4 or
+// uncompressed, UInt32 block headers, Int32 connectivity and offsets), as ParaView reads it. Used
+// for the per-frame outputs: bones, muscle surfaces, fibres, action lines.
 #pragma once
 
 #include "fascicle/core/types.hpp"
@@ -38,11 +38,18 @@ PolyData make_polydata(const TriMesh& mesh);
 // naming the field.
 void check_polydata(const PolyData& data);
 
-// Writes a .vtp: VTK encodes it in memory, then it goes into a temporary file that is renamed over
-// `path` on success (an error never leaves a partial file; the same input gives the same bytes).
+// How the arrays of a .vtp are stored. LZ4 pays where an array repeats itself (a field constant
+// over the cells); coordinates, displacements and triangle ids of real meshes do not compress
+// (< 5 %), and there it only costs time. VTK's readers and ParaView read both.
+enum class VtpCompression { lz4, none };
+
+// Writes a .vtp: VTK encodes it into a buffer in memory (one per thread, reused from file to file),
+// then it goes into a temporary file that is renamed over `path` on success (an error never leaves
+// a partial file; the same input gives the same bytes).
 // Throws fascicle::Error (bad_input naming the path) when the folder is not writable or VTK
 // reports an error.
-void write_polydata(const std::filesystem::path& path, const PolyData& data);
+void write_polydata(const std::filesystem::path& path, const PolyData& data,
+                    VtpCompression compression = VtpCompression::lz4);
 
 // Reads a .vtp with vtkXMLPolyDataReader: points, polylines, triangles (polygons with more than
 // three points are kept as fans) and all double/float/int point and cell arrays as doubles.

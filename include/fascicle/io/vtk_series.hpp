@@ -39,7 +39,8 @@ class VtkSeriesWriter {
   // Adds a dataset (already written by the caller) to the collection in memory.
   void add(double time_s, int part, const std::string& relative_file);
 
-  // Rewrites the .pvd with every dataset added so far.
+  // Rewrites the .pvd with every dataset added so far (the same bytes as write_pvd; the text of
+  // the datasets already written is kept, so a commit costs the new datasets plus the write).
   void commit() const;
 
   const std::vector<PvdDataSet>& get_datasets() const { return datasets_; }
@@ -48,6 +49,9 @@ class VtkSeriesWriter {
   std::filesystem::path pvd_path_;
   std::vector<std::string> parts_;
   std::vector<PvdDataSet> datasets_;
+  // commit()'s text: pugixml's lines before and after the datasets, and the datasets printed so far
+  mutable std::string head_, tail_, body_;
+  mutable std::size_t printed_ = 0;
 };
 
 }  // namespace fascicle
