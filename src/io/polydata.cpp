@@ -150,6 +150,10 @@ vtkStandardNewMacro(StreamPolyDataWriter)
 // One encoding buffer per thread, kept between files: VTK's many small writes (and its seeks back
 // to fill in offsets) go into memory whose capacity is reused, instead of a fresh string stream
 // per file that grows by doubling and is then copied out twice (str(), GetOutputString()).
+// Re-entrance: VTK's range computations run vtkSMPTools on TBB, so a thread waiting inside
+// Write() may start another write_polydata() of the same parallel loop. That is safe because a
+// call moves the buffer into its own stream first and takes it back only after its Write(), and
+// nothing between taking it back and the file write waits on TBB.
 std::string& get_encoding_buffer() {
   thread_local std::string buffer;
   return buffer;
