@@ -208,11 +208,22 @@ std::vector<double> calc_pair_depths(const Model& model, const std::vector<const
   std::vector<double> depth(n * n, 0.0);
   parallel_for(pairs.size(), [&](size_t k) {
     const auto [a, b] = pairs[k];
-    std::vector<double>& bound = cache.depth_bound[static_cast<size_t>(a) * n + static_cast<size_t>(b)];
+    std::vector<DepthBound>& bound = cache.depth_bound[static_cast<size_t>(a) * n + static_cast<size_t>(b)];
     if (moved[a].size() > 0 && moved[b].size() > 0 && bound.size() == static_cast<size_t>(moved[a].size())) {
-      // dist(x, S_b) is 1-Lipschitz in x, and moving every vertex of b by <= max_moved[b] moves
-      // every point of its (piecewise-linear) surface by no more: the bound widens by both.
-      for (size_t i = 0; i < bound.size(); ++i) bound[i] += moved[a][static_cast<Eigen::Index>(i)] + max_moved[b];
+      // A bound |x - y| + |y - z| with z on triangle T of b: after the motion, the point of T
+      // with z's barycentric coordinates moved by at most T's largest vertex motion, and x by
+      // |x' - x|, so the bound widens by both (distance to a surface is 1-Lipschitz).
+      const Triangles& Fb = model.muscles[b].rest_mesh.F;
+      const VecX& mb = moved[b];
+      for (size_t i = 0; i < bound.size(); ++i) {
+        DepthBound& d = bound[i];
+        if (!std::isfinite(d.bound)) continue;
+        const double other_motion =
+            d.triangle >= 0 && d.triangle < Fb.rows()
+                ? std::max({mb[Fb(d.triangle, 0)], mb[Fb(d.triangle, 1)], mb[Fb(d.triangle, 2)]})
+                : max_moved[b];
+        d.bound += moved[a][static_cast<Eigen::Index>(i)] + other_motion;
+      }
     } else {
       bound.clear();
     }

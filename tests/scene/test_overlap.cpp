@@ -171,19 +171,28 @@ TEST(MuscleOverlap, CarriedDepthBoundsPruneMeasurementsOnly) {
   const Eigen::AlignedBox3d box = calc_padded_bounding_box(B.V);
   const MuscleOverlap plain = calc_muscle_overlap(A.V, graph, qb, box);
   ASSERT_GT(plain.vertices_inside, 10);
-  std::vector<double> bound;
+  std::vector<DepthBound> bound;
   const MuscleOverlap first = calc_muscle_overlap(A.V, graph, qb, box, nullptr, &bound);
   EXPECT_EQ(first.max_depth_m, plain.max_depth_m);
   EXPECT_EQ(first.vertices_inside, plain.vertices_inside);
   ASSERT_EQ(bound.size(), static_cast<size_t>(A.V.rows()));
-  const auto check_bounds = [&](const std::vector<double>& ub) {
+  const auto check_bounds = [&](const std::vector<DepthBound>& ub) {
     int finite = 0, loose = 0;
     for (Eigen::Index i = 0; i < A.V.rows(); ++i) {
-      if (!std::isfinite(ub[static_cast<size_t>(i)])) continue;
+      const DepthBound& d = ub[static_cast<size_t>(i)];
+      if (!std::isfinite(d.bound)) continue;
       ++finite;
-      const double depth = qb.calc_closest_point(Vec3(A.V.row(i).transpose())).distance;
-      EXPECT_GE(ub[static_cast<size_t>(i)], depth) << i;
-      loose += ub[static_cast<size_t>(i)] > depth;
+      const Vec3 x = A.V.row(i).transpose();
+      const double depth = qb.calc_closest_point(x).distance;
+      EXPECT_GE(d.bound, depth) << i;
+      // the bound is realised through a point of the named triangle
+      EXPECT_GE(d.triangle, 0) << i;
+      if (d.triangle < 0) continue;
+      const TrianglePoint on = closest_point_on_triangle(x, B.V.row(B.F(d.triangle, 0)).transpose(),
+                                                         B.V.row(B.F(d.triangle, 1)).transpose(),
+                                                         B.V.row(B.F(d.triangle, 2)).transpose());
+      EXPECT_GE(d.bound * (1.0 + 1e-12), (x - on.point).norm()) << i;
+      loose += d.bound > depth;
     }
     EXPECT_EQ(finite, plain.vertices_inside);  // a bound for every inside vertex, none elsewhere
     return loose;
@@ -192,17 +201,17 @@ TEST(MuscleOverlap, CarriedDepthBoundsPruneMeasurementsOnly) {
   // Same surfaces again, the bounds widened by 0.1 um (still valid: as after a tiny motion): the
   // call skips vertices; the ones it measures get their exact depth back, the others keep a
   // widened bound.
-  std::vector<double> again = bound;
-  for (double& b : again) b += 1e-7;
+  std::vector<DepthBound> again = bound;
+  for (DepthBound& b : again) b.bound += 1e-7;
   const MuscleOverlap second = calc_muscle_overlap(A.V, graph, qb, box, nullptr, &again);
   EXPECT_EQ(second.max_depth_m, plain.max_depth_m);
   EXPECT_EQ(second.vertices_inside, plain.vertices_inside);
   int measured_first = 0, measured_second = 0;
   for (Eigen::Index i = 0; i < A.V.rows(); ++i) {
-    if (!std::isfinite(bound[static_cast<size_t>(i)])) continue;
+    if (!std::isfinite(bound[static_cast<size_t>(i)].bound)) continue;
     const double depth = qb.calc_closest_point(Vec3(A.V.row(i).transpose())).distance;
-    measured_first += bound[static_cast<size_t>(i)] == depth;
-    measured_second += again[static_cast<size_t>(i)] == depth;
+    measured_first += bound[static_cast<size_t>(i)].bound == depth;
+    measured_second += again[static_cast<size_t>(i)].bound == depth;
   }
   check_bounds(again);
   EXPECT_LT(measured_second, measured_first);
