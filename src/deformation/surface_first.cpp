@@ -382,11 +382,12 @@ struct SparseCholesky {
     }
     return ldlt.solve(rhs);
   }
-  // True when the factor is applied by fascicle/sparse's kernels (then forward() and backward()
-  // below, and the unit-column solves of the low-rank corrections, are available).
+  // First column of each supernode (the factor's `super` array; supernodal factors only).
   const int* tree_super() const {
     return static_cast<const int*>(static_cast<const cholmod_factor*>(cholmod.get_factor())->super);
   }
+  // True when the factor is a supernodal LL^T that fascicle/sparse's kernels apply: then the
+  // forward and backward halves and the unit-column solves of the low-rank corrections serve it.
   bool is_own_supernodal() const {
     return kind == SparseSolverKind::cholmod_supernodal && !tree.parent.empty() &&
            is_supernodal_llt(cholmod.get_factor());
@@ -417,8 +418,10 @@ struct SurfaceFirstSolver::Factor {
   bool use_contacts = false;
   std::vector<int> low_rank;
   VecX low_rank_weight;
-  Eigen::MatrixXd Z;                                   // dense K^-1 U (simplicial LDL^T factor)
-  std::vector<const UnitForwardColumn*> F;             // columns of L^-1 U (supernodal factor)
+  Eigen::MatrixXd Z;  // dense K^-1 U (simplicial LDL^T factor)
+  // Columns of L^-1 U (supernodal factor): point into unit_columns, valid until the next
+  // prepare_factor() or reset() (which clear F first).
+  std::vector<const UnitForwardColumn*> F;
   Eigen::PartialPivLU<Eigen::MatrixXd> capacitance;
   // Columns already computed, per factor (0: base, 1: with_contacts): free index -> column
   // (K^-1 e_j for a simplicial factor, L^-1 P e_j for a supernodal one). Cleared when that factor
