@@ -357,7 +357,9 @@ struct SparseCholesky {
     use_single_threaded_cholmod();
     if (kind == SparseSolverKind::cholmod_supernodal) {
       cholmod.factorize(K);
-      return cholmod.info() == Eigen::Success;
+      if (cholmod.info() != Eigen::Success) return false;
+      if (tree.parent.empty()) tree = make_supernodal_tree(cholmod.get_factor());
+      return true;
     }
     ldlt.factorize(K);
     return ldlt.info() == Eigen::Success;
@@ -380,8 +382,21 @@ struct SparseCholesky {
     }
     return ldlt.solve(rhs);
   }
+  // First column of each supernode (the factor's `super` array; supernodal factors only).
+  const int* tree_super() const {
+    return static_cast<const int*>(static_cast<const cholmod_factor*>(cholmod.get_factor())->super);
+  }
+  // True when the factor is a supernodal LL^T that fascicle/sparse's kernels apply: then the
+  // forward and backward halves and the unit-column solves of the low-rank corrections serve it.
+  bool is_own_supernodal() const {
+    return kind == SparseSolverKind::cholmod_supernodal && !tree.parent.empty() &&
+           is_supernodal_llt(cholmod.get_factor());
+  }
   // Scratch of the supernodal solves (the solver is used by one thread at a time).
   mutable SupernodalSolveWorkspace workspace;
+  // Elimination tree of the supernodal factor (after the first numeric factorisation; the
+  // pattern and permutation never change afterwards).
+  SupernodalTree tree;
 };
 
 // The base factor (no contacts; computed once) and the factor with the current contacts' weights
@@ -395,15 +410,25 @@ struct SurfaceFirstSolver::Factor {
   // columns e_j of the vertices in `low_rank` and W = diag(low_rank_weight) (+w_c for a contact
   // the factor lacks, -w_c for one it has but is not wanted),
   //   (K + U W U^T)^-1 r = y - Z C^-1 U^T y,  y = K^-1 r,  Z = K^-1 U,  C = W^-1 + U^T Z.
+  // With a supernodal LL^T factor K = L L^T (P omitted) the same correction is applied between
+  // the two triangular solves: (K + U W U^T)^-1 r = L^-T (z - F C^-1 F^T z), z = L^-1 r,
+  // F = L^-1 U, C = W^-1 + F^T F. A column of F is non-zero only on the elimination-tree path of
+  // its vertex (about 6 % of the rows for the VH soleus), so it costs a fraction of a solve, and
+  // F^T z, F c and C are short sums (sparse/supernodal_solve.hpp, solve_supernodal_unit_forward).
   bool use_contacts = false;
   std::vector<int> low_rank;
   VecX low_rank_weight;
-  Eigen::MatrixXd Z;
+  Eigen::MatrixXd Z;  // dense K^-1 U (simplicial LDL^T factor)
+  // Columns of L^-1 U (supernodal factor): point into unit_columns, valid until the next
+  // prepare_factor() or reset() (which clear F first).
+  std::vector<const UnitForwardColumn*> F;
   Eigen::PartialPivLU<Eigen::MatrixXd> capacitance;
-  // Columns K^-1 e_j already computed, per factor (0: base, 1: with_contacts): free index ->
-  // column. Cleared when that factor changes or grows past a bound.
+  // Columns already computed, per factor (0: base, 1: with_contacts): free index -> column
+  // (K^-1 e_j for a simplicial factor, L^-1 P e_j for a supernodal one). Cleared when that factor
+  // changes or grows past a bound.
   std::vector<int> column_of[2];
   std::vector<VecX> columns[2];
+  std::vector<UnitForwardColumn> unit_columns[2];
 
   const SparseCholesky& get_active() const { return use_contacts ? with_contacts : base; }
 };
@@ -451,9 +476,11 @@ void SurfaceFirstSolver::reset() {
   factorised_contacts_.clear();
   f.use_contacts = false;
   f.low_rank.clear();
+  f.F.clear();
   for (int k = 0; k < 2; ++k) {
     f.column_of[k].clear();
     f.columns[k].clear();
+    f.unit_columns[k].clear();
   }
 }
 
@@ -493,7 +520,46 @@ void SurfaceFirstSolver::factorise() {
 
 Eigen::MatrixXd SurfaceFirstSolver::solve(const Eigen::MatrixXd& rhs) const {
   const Factor& f = *factor_;
-  Eigen::MatrixXd y = f.get_active().solve(rhs);
+  const SparseCholesky& active = f.get_active();
+  if (!f.low_rank.empty() && !f.F.empty()) {
+    // Woodbury between the halves: z = L^-1 P r; z -= F C^-1 F^T z; x = P^T L^-T z.
+    const auto n = rhs.rows(), nc = rhs.cols();
+    Eigen::MatrixXd z(n, nc), x(n, nc);
+    const void* L = active.cholmod.get_factor();
+    solve_supernodal_forward(L, rhs.data(), static_cast<int>(nc), static_cast<int>(n), z.data(), active.workspace);
+    const auto r = static_cast<Eigen::Index>(f.F.size());
+    const int* super = active.tree_super();
+    Eigen::MatrixXd t(r, nc);
+    for (Eigen::Index k = 0; k < r; ++k) {
+      const UnitForwardColumn& col = *f.F[static_cast<std::size_t>(k)];
+      for (Eigen::Index c = 0; c < nc; ++c) {
+        const double* zc = z.data() + c * n;
+        double sum = 0.0;
+        for (std::size_t q = 0; q < col.chain.size(); ++q) {
+          const double* v = col.values.data() + col.offset[q];
+          const int k0 = super[col.chain[q]], len = col.offset[q + 1] - col.offset[q];
+          for (int i = 0; i < len; ++i) sum += v[i] * zc[k0 + i];
+        }
+        t(k, c) = sum;
+      }
+    }
+    const Eigen::MatrixXd u = f.capacitance.solve(t);
+    for (Eigen::Index k = 0; k < r; ++k) {
+      const UnitForwardColumn& col = *f.F[static_cast<std::size_t>(k)];
+      for (Eigen::Index c = 0; c < nc; ++c) {
+        double* zc = z.data() + c * n;
+        const double uk = u(k, c);
+        for (std::size_t q = 0; q < col.chain.size(); ++q) {
+          const double* v = col.values.data() + col.offset[q];
+          const int k0 = super[col.chain[q]], len = col.offset[q + 1] - col.offset[q];
+          for (int i = 0; i < len; ++i) zc[k0 + i] -= v[i] * uk;
+        }
+      }
+    }
+    solve_supernodal_backward(L, z.data(), static_cast<int>(nc), x.data(), static_cast<int>(n), active.workspace);
+    return x;
+  }
+  Eigen::MatrixXd y = active.solve(rhs);
   if (!f.low_rank.empty()) {
     Eigen::MatrixXd t(static_cast<Eigen::Index>(f.low_rank.size()), y.cols());
     for (std::size_t k = 0; k < f.low_rank.size(); ++k) t.row(static_cast<Eigen::Index>(k)) = y.row(f.low_rank[k]);
@@ -507,6 +573,7 @@ void SurfaceFirstSolver::prepare_factor(const std::vector<int>& wanted) {
   const SurfaceBinding& b = binding_;
   const double wc = b.options.contact_weight * b.diagonal_scale;
   f.low_rank.clear();
+  f.F.clear();
   // differences from the contact-free factor (= wanted) and from the contact factor
   std::vector<int> added, removed;
   const auto diff_from = [&](const std::vector<int>& have) {
@@ -524,6 +591,7 @@ void SurfaceFirstSolver::prepare_factor(const std::vector<int>& wanted) {
     f.use_contacts = true;
     f.column_of[1].clear();
     f.columns[1].clear();
+    f.unit_columns[1].clear();
     return;
   }
   f.use_contacts = to_contacts < to_base;
@@ -535,9 +603,13 @@ void SurfaceFirstSolver::prepare_factor(const std::vector<int>& wanted) {
   const auto nf = static_cast<Eigen::Index>(b.free_vertices.size());
   std::vector<int>& column_of = f.column_of[which];
   std::vector<VecX>& columns = f.columns[which];
-  if (columns.size() > 8 * limit) {
+  std::vector<UnitForwardColumn>& unit_columns = f.unit_columns[which];
+  const SparseCholesky& active = f.get_active();
+  const bool own = active.is_own_supernodal();
+  if (columns.size() > 8 * limit || unit_columns.size() > 8 * limit || (own ? !columns.empty() : !unit_columns.empty())) {
     column_of.clear();
     columns.clear();
+    unit_columns.clear();
   }
   if (column_of.empty()) column_of.assign(static_cast<std::size_t>(nf), -1);
   f.low_rank = added;
@@ -548,6 +620,28 @@ void SurfaceFirstSolver::prepare_factor(const std::vector<int>& wanted) {
   std::vector<int> missing;
   for (int j : f.low_rank)
     if (column_of[j] < 0) missing.push_back(j);
+  if (own) {
+    if (!missing.empty()) {
+      const std::size_t first = unit_columns.size();
+      unit_columns.resize(first + missing.size());
+      solve_supernodal_unit_forward(active.cholmod.get_factor(), active.tree, missing.data(),
+                                    static_cast<int>(missing.size()), unit_columns.data() + first,
+                                    active.workspace);
+      for (std::size_t k = 0; k < missing.size(); ++k) column_of[missing[k]] = static_cast<int>(first + k);
+    }
+    f.Z.resize(0, 0);
+    f.F.resize(static_cast<std::size_t>(r));
+    for (Eigen::Index k = 0; k < r; ++k) f.F[static_cast<std::size_t>(k)] = &unit_columns[column_of[f.low_rank[k]]];
+    Eigen::MatrixXd C(r, r);
+    for (Eigen::Index k = 0; k < r; ++k)
+      for (Eigen::Index l = 0; l <= k; ++l)
+        C(k, l) = C(l, k) = dot_unit_forward(*f.F[static_cast<std::size_t>(k)], *f.F[static_cast<std::size_t>(l)]);
+    C.diagonal() += f.low_rank_weight.cwiseInverse();
+    f.capacitance.compute(C);
+    ++info_.low_rank_updates;
+    return;
+  }
+  f.F.clear();
   if (!missing.empty()) {
     Eigen::MatrixXd E = Eigen::MatrixXd::Zero(nf, static_cast<Eigen::Index>(missing.size()));
     for (std::size_t k = 0; k < missing.size(); ++k) E(missing[k], static_cast<Eigen::Index>(k)) = 1.0;

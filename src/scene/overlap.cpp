@@ -34,9 +34,18 @@ OrientedBounds calc_padded_oriented_bounds(const Points3& V, const Mat3& axes) {
 }
 
 MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, const MeshQuery& other,
-                                  const Eigen::AlignedBox3d& other_box, const OrientedBounds* other_bounds) {
+                                  const Eigen::AlignedBox3d& other_box, const OrientedBounds* other_bounds,
+                                  std::vector<DepthBound>* depth_bound) {
   MuscleOverlap out;
   const Eigen::Index n = V.rows();
+  constexpr double inf = std::numeric_limits<double>::infinity();
+  if (depth_bound && depth_bound->size() != static_cast<std::size_t>(n)) depth_bound->assign(static_cast<std::size_t>(n), {});
+  // The bounds returned: only for vertices found inside (set below); +inf elsewhere.
+  std::vector<DepthBound> carried;
+  if (depth_bound) {
+    carried.swap(*depth_bound);
+    depth_bound->assign(static_cast<std::size_t>(n), {});
+  }
   // The unknown vertices: those in other's box (and oriented bounds); every other vertex lies
   // outside a convex set holding other's surface, so its winding number is 0.
   std::vector<int> local(static_cast<std::size_t>(n), -1);  // -1: left out; -2: in the box
@@ -89,20 +98,50 @@ MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, c
   }
   // Depth of the inside vertices. The distance to a surface is 1-Lipschitz, so a vertex whose
   // measured neighbour bounds its depth (neighbour depth + edge length) below the deepest found so
-  // far cannot change the maximum and is not measured (the margin covers rounding).
-  std::vector<double> bound(static_cast<std::size_t>(m), std::numeric_limits<double>::infinity());
-  for (Eigen::Index l = 0; l < m; ++l) {
-    if (winding[l] <= 0) continue;
-    ++out.vertices_inside;
-    if (bound[l] * (1.0 + 1e-9) + 1e-15 < out.max_depth_m) continue;
+  // far cannot change the maximum and is not measured (the margin covers rounding). A carried
+  // bound (depth_bound) prunes the same way; the vertex with the largest finite carried bound (in
+  // a run: near the previous frame's deepest) is measured first so that the maximum is high early.
+  // Which vertices are measured never changes the result: the deepest vertex cannot be pruned.
+  std::vector<double> bound(static_cast<std::size_t>(m), inf);
+  std::vector<int> triangle(static_cast<std::size_t>(m), -1);  // of the point realising the bound
+  if (depth_bound)
+    for (Eigen::Index l = 0; l < m; ++l) {
+      bound[l] = carried[static_cast<std::size_t>(keep[l])].bound;
+      triangle[l] = carried[static_cast<std::size_t>(keep[l])].triangle;
+    }
+  std::vector<char> measured(static_cast<std::size_t>(m), 0);
+  const auto measure = [&](Eigen::Index l) {
     const Vec3 p = P.row(l).transpose();
-    const double depth = other.calc_closest_point(p).distance;
+    const ClosestPoint cp = other.calc_closest_point(p);
+    const double depth = cp.distance;
+    measured[l] = 1;
+    bound[l] = depth;
+    triangle[l] = cp.triangle;
     out.max_depth_m = std::max(out.max_depth_m, depth);
     for (int k = sub.start[l]; k < sub.start[l + 1]; ++k) {
       const int q = sub.neighbours[k];
-      bound[q] = std::min(bound[q], depth + (Vec3(P.row(q).transpose()) - p).norm());
+      const double via = depth + (Vec3(P.row(q).transpose()) - p).norm();
+      if (via < bound[q]) {
+        bound[q] = via;
+        triangle[q] = cp.triangle;
+      }
     }
+  };
+  if (depth_bound) {
+    Eigen::Index first = -1;
+    for (Eigen::Index l = 0; l < m; ++l)
+      if (winding[l] > 0 && bound[l] < inf && (first < 0 || bound[l] > bound[first])) first = l;
+    if (first >= 0) measure(first);
   }
+  for (Eigen::Index l = 0; l < m; ++l) {
+    if (winding[l] <= 0) continue;
+    ++out.vertices_inside;
+    if (measured[l] || bound[l] * (1.0 + 1e-9) + 1e-15 < out.max_depth_m) continue;
+    measure(l);
+  }
+  if (depth_bound)
+    for (Eigen::Index l = 0; l < m; ++l)
+      if (winding[l] > 0) (*depth_bound)[static_cast<std::size_t>(keep[l])] = {bound[l], triangle[l]};
   return out;
 }
 

@@ -146,6 +146,8 @@ std::vector<double> calc_pair_depths(const Model& model, const std::vector<const
   cache.query.resize(n);
   cache.axes.resize(n, Mat3::Identity());
   cache.has_axes.resize(n, 0);
+  cache.previous.resize(n);
+  cache.depth_bound.resize(n * n);
   // Broad phase: bounding boxes of the closed surfaces.
   std::vector<Eigen::AlignedBox3d> box(n);
   for (size_t m = 0; m < n; ++m) {
@@ -165,9 +167,18 @@ std::vector<double> calc_pair_depths(const Model& model, const std::vector<const
   // Per muscle: the edge graph (once per run) and the query of this surface.
   std::vector<Eigen::AlignedBox3d> padded(n);
   std::vector<OrientedBounds> bounds(n);
+  // How far each vertex moved since the previous call (the depth bounds carried from it widen by
+  // the motion of both surfaces; empty: no previous surface, the bounds are dropped).
+  std::vector<VecX> moved(n);
+  std::vector<double> max_moved(n, 0.0);
   parallel_for(n, [&](size_t m) {
     if (!is_a[m] && !is_b[m]) return;
     const Points3& V = *surface[m];
+    if (cache.previous[m].rows() == V.rows() && cache.previous[m].cols() == 3) {
+      moved[m] = (V - cache.previous[m]).rowwise().norm();
+      max_moved[m] = moved[m].maxCoeff();
+    }
+    cache.previous[m] = V;
     if (is_a[m] && cache.graph[m].start.size() != static_cast<size_t>(V.rows()) + 1)
       cache.graph[m] = make_surface_graph(model.muscles[m].rest_mesh.F, V.rows());
     if (!is_b[m]) return;
@@ -187,12 +198,37 @@ std::vector<double> calc_pair_depths(const Model& model, const std::vector<const
     else
       cache.query[m] = std::make_unique<MeshQuery>(TriMesh{V, model.muscles[m].rest_mesh.F});
   });
+  // Depth bounds are carried only from the call just before (the motion is measured since then):
+  // drop those of pairs not measured now.
+  std::vector<char> measured_now(n * n, 0);
+  for (const auto& [a, b] : pairs) measured_now[static_cast<size_t>(a) * n + static_cast<size_t>(b)] = 1;
+  for (size_t k = 0; k < n * n; ++k)
+    if (!measured_now[k]) cache.depth_bound[k].clear();
   // Narrow phase, in parallel over pairs; each pair's result depends on its two surfaces only.
   std::vector<double> depth(n * n, 0.0);
   parallel_for(pairs.size(), [&](size_t k) {
     const auto [a, b] = pairs[k];
+    std::vector<DepthBound>& bound = cache.depth_bound[static_cast<size_t>(a) * n + static_cast<size_t>(b)];
+    if (moved[a].size() > 0 && moved[b].size() > 0 && bound.size() == static_cast<size_t>(moved[a].size())) {
+      // A bound |x - y| + |y - z| with z on triangle T of b: after the motion, the point of T
+      // with z's barycentric coordinates moved by at most T's largest vertex motion, and x by
+      // |x' - x|, so the bound widens by both (distance to a surface is 1-Lipschitz).
+      const Triangles& Fb = model.muscles[b].rest_mesh.F;
+      const VecX& mb = moved[b];
+      for (size_t i = 0; i < bound.size(); ++i) {
+        DepthBound& d = bound[i];
+        if (!std::isfinite(d.bound)) continue;
+        const double other_motion =
+            d.triangle >= 0 && d.triangle < Fb.rows()
+                ? std::max({mb[Fb(d.triangle, 0)], mb[Fb(d.triangle, 1)], mb[Fb(d.triangle, 2)]})
+                : max_moved[b];
+        d.bound += moved[a][static_cast<Eigen::Index>(i)] + other_motion;
+      }
+    } else {
+      bound.clear();
+    }
     depth[static_cast<size_t>(a) * n + static_cast<size_t>(b)] =
-        calc_muscle_overlap(*surface[a], cache.graph[a], *cache.query[b], padded[b], &bounds[b]).max_depth_m;
+        calc_muscle_overlap(*surface[a], cache.graph[a], *cache.query[b], padded[b], &bounds[b], &bound).max_depth_m;
   });
   return depth;
 }

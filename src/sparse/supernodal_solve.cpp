@@ -175,30 +175,44 @@ bool has_avx2() {
   return __builtin_cpu_supports("avx2");
 }
 
-// L Lᵀ x = b in place for nr (1 .. kMaxBlock) columns b[r] (unpermuted system), supernode by
-// supernode.
-void solve_columns(const cholmod_factor& L, double* const* b, int nr, bool avx2,
-                   std::vector<double>& gathered) {
+// Forward substitution L y = b of one supernode for nr (1 .. kMaxBlock) columns b[r] (permuted
+// system): gather its rows, solve, scatter back.
+inline void forward_supernode(const cholmod_factor& L, int sn, double* const* b, int nr, bool avx2,
+                              std::vector<double>& gathered) {
+  const int* super = static_cast<const int*>(L.super);
+  const int* pi = static_cast<const int*>(L.pi);
+  const int* px = static_cast<const int*>(L.px);
+  const int* ls = static_cast<const int*>(L.s);
+  const double* lx = static_cast<const double*>(L.x);
+  const int nscol = super[sn + 1] - super[sn], nsrow = pi[sn + 1] - pi[sn];
+  const int* rows = ls + pi[sn];
+  double* t[kMaxBlock];
+  for (int r = 0; r < nr; ++r) {
+    t[r] = gathered.data() + static_cast<std::ptrdiff_t>(r) * nsrow;
+    for (int i = 0; i < nsrow; ++i) t[r][i] = b[r][rows[i]];
+  }
+  (avx2 ? supernode_forward_avx2 : supernode_forward_generic)(lx + px[sn], nsrow, nscol, t, nr);
+  for (int r = 0; r < nr; ++r)
+    for (int i = 0; i < nsrow; ++i) b[r][rows[i]] = t[r][i];
+}
+
+void forward_columns(const cholmod_factor& L, double* const* b, int nr, bool avx2,
+                     std::vector<double>& gathered) {
+  const int ns = static_cast<int>(L.nsuper);
+  for (int sn = 0; sn < ns; ++sn) forward_supernode(L, sn, b, nr, avx2, gathered);
+}
+
+// Lᵀ x = y in place for nr (1 .. kMaxBlock) columns (permuted system), supernode by supernode.
+void backward_columns(const cholmod_factor& L, double* const* b, int nr, bool avx2,
+                      std::vector<double>& gathered) {
   const int* super = static_cast<const int*>(L.super);
   const int* pi = static_cast<const int*>(L.pi);
   const int* px = static_cast<const int*>(L.px);
   const int* ls = static_cast<const int*>(L.s);
   const double* lx = static_cast<const double*>(L.x);
   const int ns = static_cast<int>(L.nsuper);
-  auto forward = avx2 ? supernode_forward_avx2 : supernode_forward_generic;
   auto backward = avx2 ? supernode_backward_avx2 : supernode_backward_generic;
   double* t[kMaxBlock];
-  for (int sn = 0; sn < ns; ++sn) {
-    const int nscol = super[sn + 1] - super[sn], nsrow = pi[sn + 1] - pi[sn];
-    const int* rows = ls + pi[sn];
-    for (int r = 0; r < nr; ++r) {
-      t[r] = gathered.data() + static_cast<std::ptrdiff_t>(r) * nsrow;
-      for (int i = 0; i < nsrow; ++i) t[r][i] = b[r][rows[i]];
-    }
-    forward(lx + px[sn], nsrow, nscol, t, nr);
-    for (int r = 0; r < nr; ++r)
-      for (int i = 0; i < nsrow; ++i) b[r][rows[i]] = t[r][i];
-  }
   for (int sn = ns - 1; sn >= 0; --sn) {
     const int nscol = super[sn + 1] - super[sn], nsrow = pi[sn + 1] - pi[sn];
     const int* rows = ls + pi[sn];
@@ -210,6 +224,19 @@ void solve_columns(const cholmod_factor& L, double* const* b, int nr, bool avx2,
     for (int r = 0; r < nr; ++r)
       for (int i = 0; i < nscol; ++i) b[r][rows[i]] = t[r][i];
   }
+}
+
+// L Lᵀ x = b in place for nr (1 .. kMaxBlock) columns b[r] (permuted system).
+void solve_columns(const cholmod_factor& L, double* const* b, int nr, bool avx2,
+                   std::vector<double>& gathered) {
+  forward_columns(L, b, nr, avx2, gathered);
+  backward_columns(L, b, nr, avx2, gathered);
+}
+
+bool use_avx2(SupernodalSolveWorkspace& workspace) {
+  if (workspace.kernel == SupernodalKernel::automatic)
+    workspace.kernel = has_avx2() ? SupernodalKernel::avx2 : SupernodalKernel::generic;
+  return workspace.kernel == SupernodalKernel::avx2;
 }
 
 }  // namespace
@@ -225,9 +252,7 @@ bool solve_supernodal_llt(const void* factor, double* B, int ncols, int ld,
   if (!is_supernodal_llt(factor)) return false;
   const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
   const int n = static_cast<int>(L.n);
-  if (workspace.kernel == SupernodalKernel::automatic)
-    workspace.kernel = has_avx2() ? SupernodalKernel::avx2 : SupernodalKernel::generic;
-  const bool avx2 = workspace.kernel == SupernodalKernel::avx2;
+  const bool avx2 = use_avx2(workspace);
   const std::size_t chunk = static_cast<std::size_t>(std::min(ncols, kMaxBlock));
   // At most kMaxBlock columns of at most n rows of a supernode.
   if (workspace.gathered.size() < chunk * n) workspace.gathered.resize(chunk * n);
@@ -255,6 +280,142 @@ bool solve_supernodal_llt(const void* factor, double* B, int ncols, int ld,
       }
   }
   return true;
+}
+
+SupernodalTree make_supernodal_tree(const void* factor) {
+  SupernodalTree tree;
+  if (!is_supernodal_llt(factor)) return tree;
+  const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
+  const int n = static_cast<int>(L.n), ns = static_cast<int>(L.nsuper);
+  const int* super = static_cast<const int*>(L.super);
+  const int* pi = static_cast<const int*>(L.pi);
+  const int* ls = static_cast<const int*>(L.s);
+  tree.supernode_of.resize(static_cast<std::size_t>(n));
+  for (int sn = 0; sn < ns; ++sn)
+    for (int k = super[sn]; k < super[sn + 1]; ++k) tree.supernode_of[static_cast<std::size_t>(k)] = sn;
+  // A supernode's parent holds its first row below the diagonal block (CHOLMOD orders supernodes
+  // so that a parent comes after its children).
+  tree.parent.assign(static_cast<std::size_t>(ns), -1);
+  for (int sn = 0; sn < ns; ++sn) {
+    const int nscol = super[sn + 1] - super[sn], nsrow = pi[sn + 1] - pi[sn];
+    if (nsrow > nscol) tree.parent[static_cast<std::size_t>(sn)] = tree.supernode_of[static_cast<std::size_t>(ls[pi[sn] + nscol])];
+  }
+  tree.position.resize(static_cast<std::size_t>(n));
+  const int* perm = static_cast<const int*>(L.Perm);
+  const bool permuted = perm && L.ordering != CHOLMOD_NATURAL;
+  for (int k = 0; k < n; ++k) tree.position[static_cast<std::size_t>(permuted ? perm[k] : k)] = k;
+  return tree;
+}
+
+bool solve_supernodal_forward(const void* factor, const double* B, int ncols, int ldb, double* Y,
+                              SupernodalSolveWorkspace& workspace) {
+  if (!is_supernodal_llt(factor)) return false;
+  const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
+  const int n = static_cast<int>(L.n);
+  const bool avx2 = use_avx2(workspace);
+  if (workspace.gathered.size() < static_cast<std::size_t>(std::min(ncols, kMaxBlock)) * n)
+    workspace.gathered.resize(static_cast<std::size_t>(std::min(ncols, kMaxBlock)) * n);
+  const int* perm = static_cast<const int*>(L.Perm);
+  const bool permuted = perm && L.ordering != CHOLMOD_NATURAL;
+  double* y[kMaxBlock];
+  for (int c0 = 0; c0 < ncols; c0 += kMaxBlock) {
+    const int nr = std::min(kMaxBlock, ncols - c0);
+    for (int r = 0; r < nr; ++r) {
+      const double* col = B + static_cast<std::ptrdiff_t>(c0 + r) * ldb;
+      y[r] = Y + static_cast<std::ptrdiff_t>(c0 + r) * n;
+      for (int k = 0; k < n; ++k) y[r][k] = col[permuted ? perm[k] : k];
+    }
+    forward_columns(L, y, nr, avx2, workspace.gathered);
+  }
+  return true;
+}
+
+bool solve_supernodal_backward(const void* factor, double* Y, int ncols, double* X, int ldx,
+                               SupernodalSolveWorkspace& workspace) {
+  if (!is_supernodal_llt(factor)) return false;
+  const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
+  const int n = static_cast<int>(L.n);
+  const bool avx2 = use_avx2(workspace);
+  if (workspace.gathered.size() < static_cast<std::size_t>(std::min(ncols, kMaxBlock)) * n)
+    workspace.gathered.resize(static_cast<std::size_t>(std::min(ncols, kMaxBlock)) * n);
+  const int* perm = static_cast<const int*>(L.Perm);
+  const bool permuted = perm && L.ordering != CHOLMOD_NATURAL;
+  double* y[kMaxBlock];
+  for (int c0 = 0; c0 < ncols; c0 += kMaxBlock) {
+    const int nr = std::min(kMaxBlock, ncols - c0);
+    for (int r = 0; r < nr; ++r) y[r] = Y + static_cast<std::ptrdiff_t>(c0 + r) * n;
+    backward_columns(L, y, nr, avx2, workspace.gathered);
+    for (int r = 0; r < nr; ++r) {
+      double* col = X + static_cast<std::ptrdiff_t>(c0 + r) * ldx;
+      for (int k = 0; k < n; ++k) col[permuted ? perm[k] : k] = y[r][k];
+    }
+  }
+  return true;
+}
+
+bool solve_supernodal_unit_forward(const void* factor, const SupernodalTree& tree, const int* rows,
+                                   int count, UnitForwardColumn* out,
+                                   SupernodalSolveWorkspace& workspace) {
+  if (!is_supernodal_llt(factor)) return false;
+  const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
+  const int n = static_cast<int>(L.n), ns = static_cast<int>(L.nsuper);
+  const int* super = static_cast<const int*>(L.super);
+  const bool avx2 = use_avx2(workspace);
+  if (workspace.gathered.size() < static_cast<std::size_t>(kMaxBlock) * n)
+    workspace.gathered.resize(static_cast<std::size_t>(kMaxBlock) * n);
+  // Zero columns (kept zero between calls) and the union of the columns' supernode chains.
+  if (workspace.unit.size() < static_cast<std::size_t>(kMaxBlock) * n)
+    workspace.unit.assign(static_cast<std::size_t>(kMaxBlock) * n, 0.0);
+  if (workspace.marked.size() < static_cast<std::size_t>(ns)) workspace.marked.assign(static_cast<std::size_t>(ns), 0);
+  std::vector<int> chain_union;
+  double* b[kMaxBlock];
+  for (int c0 = 0; c0 < count; c0 += kMaxBlock) {
+    const int nr = std::min(kMaxBlock, count - c0);
+    chain_union.clear();
+    for (int r = 0; r < nr; ++r) {
+      b[r] = workspace.unit.data() + static_cast<std::ptrdiff_t>(r) * n;
+      const int k = tree.position[static_cast<std::size_t>(rows[c0 + r])];
+      b[r][k] = 1.0;
+      UnitForwardColumn& col = out[c0 + r];
+      col.chain.clear();
+      for (int sn = tree.supernode_of[static_cast<std::size_t>(k)]; sn >= 0; sn = tree.parent[static_cast<std::size_t>(sn)]) {
+        col.chain.push_back(sn);
+        if (!workspace.marked[static_cast<std::size_t>(sn)]) {
+          workspace.marked[static_cast<std::size_t>(sn)] = 1;
+          chain_union.push_back(sn);
+        }
+      }
+      std::reverse(col.chain.begin(), col.chain.end());  // root first
+    }
+    // Supernodes off a column's chain see only zeros of that column and leave them zero, so the
+    // union gives every column the values of its own full forward solve.
+    std::sort(chain_union.begin(), chain_union.end());
+    for (int sn : chain_union) forward_supernode(L, sn, b, nr, avx2, workspace.gathered);
+    for (int r = 0; r < nr; ++r) {
+      UnitForwardColumn& col = out[c0 + r];
+      col.offset.assign(1, 0);
+      col.values.clear();
+      for (int sn : col.chain) {
+        col.values.insert(col.values.end(), b[r] + super[sn], b[r] + super[sn + 1]);
+        col.offset.push_back(static_cast<int>(col.values.size()));
+      }
+    }
+    for (int sn : chain_union) {
+      workspace.marked[static_cast<std::size_t>(sn)] = 0;
+      for (int r = 0; r < nr; ++r) std::fill(b[r] + super[sn], b[r] + super[sn + 1], 0.0);
+    }
+  }
+  return true;
+}
+
+double dot_unit_forward(const UnitForwardColumn& a, const UnitForwardColumn& b) {
+  // Both chains run from the root down: they share a prefix and then part for good.
+  std::size_t m = 0;
+  while (m < a.chain.size() && m < b.chain.size() && a.chain[m] == b.chain[m]) ++m;
+  const int len = m == 0 ? 0 : a.offset[m];
+  double sum = 0.0;
+  for (int i = 0; i < len; ++i) sum += a.values[static_cast<std::size_t>(i)] * b.values[static_cast<std::size_t>(i)];
+  return sum;
 }
 
 }  // namespace fascicle

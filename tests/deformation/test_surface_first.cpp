@@ -239,49 +239,55 @@ TEST(SurfaceFirstContact, LowRankContactUpdatesMatchRefactorisation) {
   TriMesh ball = make_icosphere(0.01, 3);
   ball.V.col(0).array() += kRadius + 0.01 + 0.001;  // 1 mm outside the muscle at rest
   const MeshQuery bone(ball);
-  SurfaceFirstOptions refactorise, low_rank;
-  refactorise.max_low_rank = 0;
-  low_rank.max_low_rank = 32;
-  const SurfaceBinding b0 = bind_surface(muscle, line, areas, {&bone}, refactorise);
-  const SurfaceBinding b1 = bind_surface(muscle, line, areas, {&bone}, low_rank);
-  SurfaceFirstSolver s0(b0, {&bone}), s1(b1, {&bone});
-  double worst_difference = 0.0;
-  int frames_with_contacts = 0;
-  for (int k = 0; k <= 40; ++k) {
-    const double press = 0.25e-3 * (k <= 20 ? k : 40 - k);  // 0 -> 5 mm -> 0
-    SurfaceFrameInput in;
-    in.action_line = line;
-    in.attachment_motions = {Transform::Identity(), Transform::Identity()};
-    Transform T = Transform::Identity();
-    T.translate(Vec3(-press, 0, 0));
-    in.bone_motions = {T};
-    const Points3& X0 = s0.calc_frame(in);
-    const Points3& X1 = s1.calc_frame(in);
-    ASSERT_EQ(s0.get_info().active_contacts, s1.get_info().active_contacts) << "frame " << k;
-    frames_with_contacts += s1.get_info().active_contacts > 0;
-    // Each contact round after the first starts from the previous round's solution with the
-    // direction K^-1 grad V there (solved with the minimiser as six right-hand sides), and the
-    // press changes the shape little: one step and one check. (A defect once kept only three of
-    // the six solved columns, so the first step went along the minimiser itself: 4 solves.)
-    const SurfaceFrameInfo& info = s1.get_info();
-    if (info.contact_rounds > 1) {
-      EXPECT_LE(info.volume_iterations, 1 + 2 * (info.contact_rounds - 1)) << "frame " << k;
+  // Both factor kinds: the supernodal one corrects between its triangular solves (sparse columns
+  // of L^-1 U), the simplicial LDL^T one after its solve (dense columns of K^-1 U).
+  for (const SparseSolverKind kind : {SparseSolverKind::cholmod_supernodal, SparseSolverKind::eigen_simplicial_ldlt}) {
+    SCOPED_TRACE(kind == SparseSolverKind::cholmod_supernodal ? "supernodal" : "simplicial LDLT");
+    SurfaceFirstOptions refactorise, low_rank;
+    refactorise.sparse_solver = low_rank.sparse_solver = kind;
+    refactorise.max_low_rank = 0;
+    low_rank.max_low_rank = 32;
+    const SurfaceBinding b0 = bind_surface(muscle, line, areas, {&bone}, refactorise);
+    const SurfaceBinding b1 = bind_surface(muscle, line, areas, {&bone}, low_rank);
+    SurfaceFirstSolver s0(b0, {&bone}), s1(b1, {&bone});
+    double worst_difference = 0.0;
+    int frames_with_contacts = 0;
+    for (int k = 0; k <= 40; ++k) {
+      const double press = 0.25e-3 * (k <= 20 ? k : 40 - k);  // 0 -> 5 mm -> 0
+      SurfaceFrameInput in;
+      in.action_line = line;
+      in.attachment_motions = {Transform::Identity(), Transform::Identity()};
+      Transform T = Transform::Identity();
+      T.translate(Vec3(-press, 0, 0));
+      in.bone_motions = {T};
+      const Points3& X0 = s0.calc_frame(in);
+      const Points3& X1 = s1.calc_frame(in);
+      ASSERT_EQ(s0.get_info().active_contacts, s1.get_info().active_contacts) << "frame " << k;
+      frames_with_contacts += s1.get_info().active_contacts > 0;
+      // Each contact round after the first starts from the previous round's solution with the
+      // direction K^-1 grad V there (solved with the minimiser as six right-hand sides), and the
+      // press changes the shape little: one step and one check. (A defect once kept only three of
+      // the six solved columns, so the first step went along the minimiser itself: 4 solves.)
+      const SurfaceFrameInfo& info = s1.get_info();
+      if (info.contact_rounds > 1) {
+        EXPECT_LE(info.volume_iterations, 1 + 2 * (info.contact_rounds - 1)) << "frame " << k;
+      }
+      worst_difference = std::max(worst_difference, (X1 - X0).cwiseAbs().maxCoeff());
+      EXPECT_LE(s1.get_info().relative_volume_error, 1e-12);
+      EXPECT_LE(s1.get_info().max_penetration_beyond_rest_m, 0.5e-3);
+      EXPECT_LE(calc_bone_penetration(X1, bone, T, b1.rest_bone_depth[0], b1.fixed_vertices).max_depth_beyond_rest_m,
+                0.5e-3);
     }
-    worst_difference = std::max(worst_difference, (X1 - X0).cwiseAbs().maxCoeff());
-    EXPECT_LE(s1.get_info().relative_volume_error, 1e-12);
-    EXPECT_LE(s1.get_info().max_penetration_beyond_rest_m, 0.5e-3);
-    EXPECT_LE(calc_bone_penetration(X1, bone, T, b1.rest_bone_depth[0], b1.fixed_vertices).max_depth_beyond_rest_m,
-              0.5e-3);
+    EXPECT_GT(frames_with_contacts, 20);
+    EXPECT_LT(worst_difference, 1e-9);  // metres: round-off of the two factorisations
+    EXPECT_EQ(s0.get_info().low_rank_updates, 0);
+    EXPECT_GT(s1.get_info().low_rank_updates, 10);
+    EXPECT_LT(s1.get_info().factorisations, s0.get_info().factorisations);
+    std::printf("ball pressed 0 -> 5 -> 0 mm in 41 frames: %d refactorisations, or %d with %d low-rank updates; "
+                "max vertex difference %.2g m\n",
+                s0.get_info().factorisations, s1.get_info().factorisations, s1.get_info().low_rank_updates,
+                worst_difference);
   }
-  EXPECT_GT(frames_with_contacts, 20);
-  EXPECT_LT(worst_difference, 1e-9);  // metres: round-off of the two factorisations
-  EXPECT_EQ(s0.get_info().low_rank_updates, 0);
-  EXPECT_GT(s1.get_info().low_rank_updates, 10);
-  EXPECT_LT(s1.get_info().factorisations, s0.get_info().factorisations);
-  std::printf("ball pressed 0 -> 5 -> 0 mm in 41 frames: %d refactorisations, or %d with %d low-rank updates; "
-              "max vertex difference %.2g m\n",
-              s0.get_info().factorisations, s1.get_info().factorisations, s1.get_info().low_rank_updates,
-              worst_difference);
 }
 
 }  // namespace

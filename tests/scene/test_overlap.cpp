@@ -159,6 +159,65 @@ TEST(MuscleOverlap, CacheAndThreadCountDoNotChangeResults) {
 
 }  // namespace
 
+// Carried depth bounds (calc_muscle_overlap's depth_bound): the same result as without them, the
+// returned bounds are true upper bounds of every inside vertex's depth (equal where measured), and
+// with the bounds of a first call a second call on the same surfaces measures fewer vertices.
+TEST(MuscleOverlap, CarriedDepthBoundsPruneMeasurementsOnly) {
+  const Model model = compile(make_overlapping_scene(), make_default_registry());
+  const TriMesh& A = model.muscles[0].rest_mesh;
+  const TriMesh& B = model.muscles[1].rest_mesh;
+  const MeshQuery qb(B);
+  const SurfaceGraph graph = make_surface_graph(A.F, A.V.rows());
+  const Eigen::AlignedBox3d box = calc_padded_bounding_box(B.V);
+  const MuscleOverlap plain = calc_muscle_overlap(A.V, graph, qb, box);
+  ASSERT_GT(plain.vertices_inside, 10);
+  std::vector<DepthBound> bound;
+  const MuscleOverlap first = calc_muscle_overlap(A.V, graph, qb, box, nullptr, &bound);
+  EXPECT_EQ(first.max_depth_m, plain.max_depth_m);
+  EXPECT_EQ(first.vertices_inside, plain.vertices_inside);
+  ASSERT_EQ(bound.size(), static_cast<size_t>(A.V.rows()));
+  const auto check_bounds = [&](const std::vector<DepthBound>& ub) {
+    int finite = 0, loose = 0;
+    for (Eigen::Index i = 0; i < A.V.rows(); ++i) {
+      const DepthBound& d = ub[static_cast<size_t>(i)];
+      if (!std::isfinite(d.bound)) continue;
+      ++finite;
+      const Vec3 x = A.V.row(i).transpose();
+      const double depth = qb.calc_closest_point(x).distance;
+      EXPECT_GE(d.bound, depth) << i;
+      // the bound is realised through a point of the named triangle
+      EXPECT_GE(d.triangle, 0) << i;
+      if (d.triangle < 0) continue;
+      const TrianglePoint on = closest_point_on_triangle(x, B.V.row(B.F(d.triangle, 0)).transpose(),
+                                                         B.V.row(B.F(d.triangle, 1)).transpose(),
+                                                         B.V.row(B.F(d.triangle, 2)).transpose());
+      EXPECT_GE(d.bound * (1.0 + 1e-12), (x - on.point).norm()) << i;
+      loose += d.bound > depth;
+    }
+    EXPECT_EQ(finite, plain.vertices_inside);  // a bound for every inside vertex, none elsewhere
+    return loose;
+  };
+  check_bounds(bound);
+  // Same surfaces again, the bounds widened by 0.1 um (still valid: as after a tiny motion): the
+  // call skips vertices; the ones it measures get their exact depth back, the others keep a
+  // widened bound.
+  std::vector<DepthBound> again = bound;
+  for (DepthBound& b : again) b.bound += 1e-7;
+  const MuscleOverlap second = calc_muscle_overlap(A.V, graph, qb, box, nullptr, &again);
+  EXPECT_EQ(second.max_depth_m, plain.max_depth_m);
+  EXPECT_EQ(second.vertices_inside, plain.vertices_inside);
+  int measured_first = 0, measured_second = 0;
+  for (Eigen::Index i = 0; i < A.V.rows(); ++i) {
+    if (!std::isfinite(bound[static_cast<size_t>(i)].bound)) continue;
+    const double depth = qb.calc_closest_point(Vec3(A.V.row(i).transpose())).distance;
+    measured_first += bound[static_cast<size_t>(i)].bound == depth;
+    measured_second += again[static_cast<size_t>(i)].bound == depth;
+  }
+  check_bounds(again);
+  EXPECT_LT(measured_second, measured_first);
+  EXPECT_GE(measured_second, 1);  // the deepest vertex is always measured
+}
+
 // The growth figure: per ordered pair, the depth now minus the pair's depth between the rest meshes
 // (never below 0), the largest over the other muscles. Two muscles, so each one's overlap is its one
 // pair's depth; the rest depths are measured here directly from the rest meshes.

@@ -207,6 +207,71 @@ TEST_F(SupernodalSolve, GenericAndAvx2KernelsGiveIdenticalBits) {
   }
 }
 
+TEST_F(SupernodalSolve, ForwardThenBackwardEqualsTheWholeSolve) {
+  // The two halves (with the permuted intermediate in between) give the whole solve's bits, for
+  // every block width and a padded leading dimension.
+  for (int ncols = 1; ncols <= 10; ++ncols) {
+    const int ld = A_.n + 3;
+    const std::vector<double> B = random_rhs(ncols, ld, 700u + ncols);
+    std::vector<double> whole = B, Y(static_cast<std::size_t>(A_.n) * ncols), X(B.size(), -7.0);
+    SupernodalSolveWorkspace ws;
+    ASSERT_TRUE(solve_supernodal_llt(L_, whole.data(), ncols, ld, ws));
+    ASSERT_TRUE(solve_supernodal_forward(L_, B.data(), ncols, ld, Y.data(), ws));
+    ASSERT_TRUE(solve_supernodal_backward(L_, Y.data(), ncols, X.data(), ld, ws));
+    for (int c = 0; c < ncols; ++c)
+      for (int k = 0; k < A_.n; ++k) {
+        const std::size_t q = static_cast<std::size_t>(c) * ld + k;
+        ASSERT_EQ(X[q], whole[q]) << ncols << " columns, column " << c << " row " << k;
+      }
+  }
+}
+
+TEST_F(SupernodalSolve, UnitForwardColumnsEqualFullForwardSolves) {
+  // L^-1 P e_j restricted to the elimination-tree path of j: the same values as the full forward
+  // solve, exact zeros elsewhere; their dot products are the entries of A^-1.
+  const SupernodalTree tree = make_supernodal_tree(L_);
+  ASSERT_EQ(static_cast<int>(tree.position.size()), A_.n);
+  ASSERT_EQ(tree.parent.size(), L_->nsuper);
+  for (std::size_t s = 0; s < tree.parent.size(); ++s)
+    if (tree.parent[s] >= 0) {
+      ASSERT_GT(tree.parent[s], static_cast<int>(s));
+    }
+  const std::vector<int> rows = {0, 5, 17, 17, 100, 333, 901, 1200, 1500, A_.n - 1, 42};  // 11: two passes
+  std::vector<UnitForwardColumn> F(rows.size());
+  SupernodalSolveWorkspace ws;
+  ASSERT_TRUE(solve_supernodal_unit_forward(L_, tree, rows.data(), static_cast<int>(rows.size()), F.data(), ws));
+  const int* super = static_cast<const int*>(L_->super);
+  std::vector<double> Ainv(rows.size() * A_.n);  // columns A^-1 e_j (whole solves)
+  std::size_t touched = 0;
+  for (std::size_t k = 0; k < rows.size(); ++k) {
+    std::vector<double> e(static_cast<std::size_t>(A_.n), 0.0), y(static_cast<std::size_t>(A_.n));
+    e[static_cast<std::size_t>(rows[k])] = 1.0;
+    ASSERT_TRUE(solve_supernodal_forward(L_, e.data(), 1, A_.n, y.data(), ws));
+    std::vector<double> from_path(static_cast<std::size_t>(A_.n), 0.0);
+    for (std::size_t c = 0; c < F[k].chain.size(); ++c) {
+      const int sn = F[k].chain[c];
+      ASSERT_EQ(F[k].offset[c + 1] - F[k].offset[c], super[sn + 1] - super[sn]);
+      for (int i = 0; i < super[sn + 1] - super[sn]; ++i) from_path[static_cast<std::size_t>(super[sn] + i)] = F[k].values[static_cast<std::size_t>(F[k].offset[c] + i)];
+    }
+    for (int i = 0; i < A_.n; ++i) ASSERT_EQ(from_path[static_cast<std::size_t>(i)], y[static_cast<std::size_t>(i)]) << "column " << k << " row " << i;
+    touched += F[k].values.size();
+    std::vector<double> x(static_cast<std::size_t>(A_.n));
+    ASSERT_TRUE(solve_supernodal_backward(L_, y.data(), 1, x.data(), A_.n, ws));
+    std::copy(x.begin(), x.end(), Ainv.begin() + static_cast<std::ptrdiff_t>(k * A_.n));
+  }
+  EXPECT_LT(touched, rows.size() * static_cast<std::size_t>(A_.n) / 2);  // the paths are short
+  for (std::size_t a = 0; a < rows.size(); ++a)
+    for (std::size_t b = 0; b < rows.size(); ++b) {
+      const double ref = Ainv[b * A_.n + static_cast<std::size_t>(rows[a])];
+      EXPECT_NEAR(dot_unit_forward(F[a], F[b]), ref, 1e-13 * std::abs(Ainv[a * A_.n + static_cast<std::size_t>(rows[a])]))
+          << rows[a] << ", " << rows[b];
+    }
+  // The workspace's unit columns are left zero: a second call gives the same bits.
+  std::vector<UnitForwardColumn> again(rows.size());
+  ASSERT_TRUE(solve_supernodal_unit_forward(L_, tree, rows.data(), static_cast<int>(rows.size()), again.data(), ws));
+  for (std::size_t k = 0; k < rows.size(); ++k) EXPECT_EQ(again[k].values, F[k].values);
+}
+
 TEST_F(SupernodalSolve, RefusesASimplicialFactor) {
   cholmod_factor* Ls = cholmod_copy_factor(L_, &c_);
   ASSERT_TRUE(cholmod_change_factor(CHOLMOD_REAL, 1, 0, 1, 1, Ls, &c_));  // simplicial LLᵀ

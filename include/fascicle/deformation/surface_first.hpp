@@ -46,8 +46,10 @@ struct SurfaceFirstOptions {
   int max_contact_rounds = 8;         // solve -> detect -> add/release rounds per frame
   // When the wanted contact set differs from a factorised one (the contact-free factor or the
   // last contact factor) by at most this many vertices, the factor is corrected by a low-rank
-  // (Woodbury) update instead of a numeric refactorisation; 0 always refactorises.
-  int max_low_rank = 32;
+  // (Woodbury) update instead of a numeric refactorisation; 0 always refactorises. (32 until
+  // session 10, when the supernodal correction moved between the triangular solves and its
+  // columns became sparse: docs/deformation.md.)
+  int max_low_rank = 128;
   int max_volume_iterations = 10;     // Gauss-Newton iterations on the volume constraint
   // Stop when the relative change of the volume gradient between iterations (the relative KKT
   // residual of the constrained problem) is below this. The volume is exact at every iterate; this

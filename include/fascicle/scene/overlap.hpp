@@ -14,6 +14,7 @@
 #include "fascicle/core/types.hpp"
 #include "fascicle/geometry/mesh_query.hpp"
 
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -59,9 +60,23 @@ OrientedBounds calc_padded_oriented_bounds(const Points3& V, const Mat3& axes);
 // (per-vertex ray vote) in the same cases. `other_bounds` (optional): oriented bounds of other's
 // vertices; vertices outside them are known to be outside as well, so fewer vertices need the
 // propagation (the winding numbers found are the same).
+// An upper bound of a point x's distance to a surface: bound >= |x - z| for a point z of the
+// surface's triangle `triangle`. After the point and the surface's vertices move, bound + |x' - x|
+// + (that triangle's largest vertex motion) is again such a bound (for z's barycentric point).
+struct DepthBound {
+  double bound = std::numeric_limits<double>::infinity();
+  int triangle = -1;
+};
+// `depth_bound` (optional, one entry per vertex of V): upper bounds of the vertices' distances to
+// other's surface, e.g. carried from an earlier frame (calc_pair_depths in state.cpp widens them by
+// the motions). Vertices whose bound lies below the deepest depth measured so far are not
+// measured; the maximum is the same (the deepest vertex is always measured). On return it holds
+// bounds for this call's surfaces: the measured depth, or the tightest bound known, for the
+// vertices found inside; +inf for the others.
 MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, const MeshQuery& other,
                                   const Eigen::AlignedBox3d& other_box,
-                                  const OrientedBounds* other_bounds = nullptr);
+                                  const OrientedBounds* other_bounds = nullptr,
+                                  std::vector<DepthBound>* depth_bound = nullptr);
 
 // What the overlap measure keeps from frame to frame, per muscle (owned by State, created empty by
 // make_state(); filled on first use). Never changes results: a State whose cache is empty and one
@@ -74,6 +89,10 @@ struct MuscleOverlapCache {
   // Per ordered pair (a, b), at [a * #muscles + b]: the depth of a's rest-mesh vertices inside b's
   // rest mesh (0 when their rest boxes do not meet). A function of the Model, measured once.
   std::vector<double> rest_depth;
+  // Per muscle: the surface of the last call (to bound how far its points moved since); per
+  // ordered pair: calc_muscle_overlap's depth bounds from that call. Only skip measurements.
+  std::vector<Points3> previous;
+  std::vector<std::vector<DepthBound>> depth_bound;
 };
 
 }  // namespace fascicle

@@ -18,6 +18,8 @@ struct SupernodalSolveWorkspace {
   SupernodalKernel kernel = SupernodalKernel::automatic;
   std::vector<double> gathered;  // one supernode's rows of up to eight right-hand sides
   std::vector<double> permuted;  // P b for up to eight right-hand sides (permuted factors only)
+  std::vector<double> unit;      // unit right-hand sides (solve_supernodal_unit_forward; kept zero)
+  std::vector<char> marked;      // per supernode (solve_supernodal_unit_forward; kept zero)
 };
 
 // True when `factor` (a `const cholmod_factor*`) is one solve_supernodal_llt can apply: numeric,
@@ -32,5 +34,43 @@ bool is_supernodal_llt(const void* factor);
 // then uses CHOLMOD's own solve.
 bool solve_supernodal_llt(const void* factor, double* B, int ncols, int ld,
                           SupernodalSolveWorkspace& workspace);
+
+// The two halves of solve_supernodal_llt, for a correction between them (a low-rank update of the
+// factorised matrix, deformation/surface_first.cpp): Y = L⁻¹ P B (Y: n x ncols, column-major,
+// leading dimension n, in the factor's permuted order), then X = Pᵀ L⁻ᵀ Y (Y is overwritten).
+// Forward then backward give the same bits as solve_supernodal_llt. False when
+// !is_supernodal_llt(factor).
+bool solve_supernodal_forward(const void* factor, const double* B, int ncols, int ldb, double* Y,
+                              SupernodalSolveWorkspace& workspace);
+bool solve_supernodal_backward(const void* factor, double* Y, int ncols, double* X, int ldx,
+                               SupernodalSolveWorkspace& workspace);
+
+// The supernodal elimination tree of a factor: parent[s] (−1 at a root; parents come after their
+// children), supernode_of[k] for each permuted row k, and position[j]: where the factor's
+// permutation puts original row j (P e_j = e_position[j]). Empty when !is_supernodal_llt(factor).
+struct SupernodalTree {
+  std::vector<int> parent;
+  std::vector<int> supernode_of;
+  std::vector<int> position;
+};
+SupernodalTree make_supernodal_tree(const void* factor);
+
+// f = L⁻¹ P e_j for a unit vector: non-zero only in the pivot rows of the supernodes on the path
+// from position[j]'s supernode to the root (Gilbert's reach in the elimination tree). Stored along
+// that chain, root first: the values of supernode chain[c] (its pivot rows, in order) are
+// values[offset[c] .. offset[c + 1]).
+struct UnitForwardColumn {
+  std::vector<int> chain;
+  std::vector<int> offset;
+  std::vector<double> values;
+};
+// out[k] = L⁻¹ P e_rows[k] for k < count (original row indices), only the supernodes on the
+// chains visited (up to eight columns per pass). The values equal those of a full forward solve.
+bool solve_supernodal_unit_forward(const void* factor, const SupernodalTree& tree, const int* rows,
+                                   int count, UnitForwardColumn* out,
+                                   SupernodalSolveWorkspace& workspace);
+// aᵀ b of two such columns (of one factor): (L⁻¹ P e_i)ᵀ (L⁻¹ P e_j) = (A⁻¹)_ij. Summed in row order
+// over the shared part of the two chains.
+double dot_unit_forward(const UnitForwardColumn& a, const UnitForwardColumn& b);
 
 }  // namespace fascicle
