@@ -7,6 +7,7 @@
 #include "fascicle/scene/model.hpp"
 #include "fascicle/scene/state.hpp"
 #include "muscle_setup.hpp"
+#include <spdlog/spdlog.h>
 
 #include <limits>
 #include <cmath>
@@ -141,6 +142,9 @@ class FibresFirst final : public MuscleGroupRepresentation {
     if (std::isfinite(frame->last_time_s) && state.time_s > frame->last_time_s)
       input.time_step_s = state.time_s - frame->last_time_s;
     frame->solver.calc_frame(input);
+    const FibresFirstInfo& info = frame->solver.get_info();
+    spdlog::debug("fibres_first t = {:.3f} s: {} iterations, {} solves, {} contact rounds, {} final passes",
+                  state.time_s, info.iterations, info.solves, info.contact_rounds, info.final_passes);
     frame->last_time_s = state.time_s;
     const auto& results = frame->solver.get_muscles();
     for (size_t k = 0; k < muscles.size(); ++k) {
