@@ -96,6 +96,11 @@ void run_fibres(const FibresArgs& a) {
     throw_usage("--pennation-plane sheet-border needs an interior aponeurosis (--aponeurosis)",
                 {.suggestion = "give the segmented aponeurosis mesh, or use --pennation-plane "
                                "thickness"});
+  if (a.pennation_plane == "sheet-border" && a.pennation_reference == "aponeurosis")
+    throw_usage("--pennation-plane sheet-border needs --pennation-reference line",
+                {.suggestion = "measured against the aponeuroses the border direction replaces their "
+                               "normal (Bolsterlee TA 18.1 deg from the DTI tracts against 12.8 with the "
+                               "line of action; docs/fibres.md)"});
   if (a.rise_crossing == "mapped-crossing" && (opt.method != FibreMethod::template_map || !(a.pennation_deg > 0.0)))
     throw_usage("--rise-crossing mapped-crossing needs --method template and --pennation-deg");
   if (aponeurosis_areas && (!a.origin.empty() || !a.bones.empty()))
@@ -146,7 +151,7 @@ void run_fibres(const FibresArgs& a) {
       if (effective_pennation_plane(a) == "thickness")
         opt.harmonic.transverse_direction = areas.thickness_direction;
       // Towards the border where the interior aponeurosis becomes its tendon (session 10: DTI TA
-      // 13.6 -> 12.6 deg; docs/fibres.md).
+      // 13.6 -> 12.8 deg; docs/fibres.md).
       if (effective_pennation_plane(a) == "sheet-border") {
         try {
           opt.harmonic.transverse_targets = find_aponeurosis_border(

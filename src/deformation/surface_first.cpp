@@ -585,7 +585,12 @@ void SurfaceFirstSolver::prepare_factor(const std::vector<int>& wanted) {
   };
   const std::size_t to_base = wanted.size();
   const std::size_t to_contacts = analysed_contacts_ ? diff_from(factorised_contacts_) : to_base + 1;
-  const auto limit = static_cast<std::size_t>(std::max(0, b.options.max_low_rank));
+  // The supernodal path corrects with sparse columns L^-1 e_j (cheap, session 10); the simplicial
+  // fallback keeps dense columns K^-1 e_j (one full solve each, up to 8 x limit of n doubles cached),
+  // so it keeps the rank bound of before (32) whatever the option says.
+  constexpr std::size_t kDenseLowRankLimit = 32;
+  const auto option_limit = static_cast<std::size_t>(std::max(0, b.options.max_low_rank));
+  const auto limit = f.base.is_own_supernodal() ? option_limit : std::min(option_limit, kDenseLowRankLimit);
   if (std::min(to_base, to_contacts) > limit) {
     factorise();
     f.use_contacts = true;

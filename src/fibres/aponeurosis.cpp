@@ -228,6 +228,9 @@ Points3 find_aponeurosis_border(const TriMesh& muscle, const Points3& sheet,
                                 int bins) {
   if (sheet.rows() < 3) throw_bad_input("the aponeurosis has fewer than 3 points inside the muscle");
   if (bins < 2) throw_usage("the aponeurosis border needs at least 2 bins along the muscle");
+  if (!(thickness_direction.norm() > 0.0))
+    throw_usage("no thickness direction: the attachment areas are not aponeurosis areas",
+                {.suggestion = "find the areas with find_aponeurosis_attachments (--attachments aponeurosis)"});
   const Vec3 ez = calc_principal_axis(muscle, origin_towards);
   Vec3 ex = thickness_direction - thickness_direction.dot(ez) * ez;
   if (!(ex.norm() > 1e-6)) throw_usage("the sheet's normal is parallel to the muscle's principal axis");

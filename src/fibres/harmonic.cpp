@@ -261,7 +261,7 @@ HarmonicField calc_harmonic_field(const TriMesh& muscle, const Attachments& area
       }
     };
     const Points3 tet_u = field.tet_gradient, vertex_u = field.vertex_gradient;
-    Points3 centroids = Points3::Zero(field.tets.num_tets(), 3);
+    Points3 centroids = Points3::Zero(field.tets.num_tets(), 3);  // read by transverse() per row
     if (targets)
       for (Eigen::Index t = 0; t < field.tets.num_tets(); ++t)
         for (int k = 0; k < 4; ++k) centroids.row(t) += 0.25 * field.tets.V.row(field.tets.T(t, k));

@@ -151,9 +151,9 @@ vtkStandardNewMacro(StreamPolyDataWriter)
 // to fill in offsets) go into memory whose capacity is reused, instead of a fresh string stream
 // per file that grows by doubling and is then copied out twice (str(), GetOutputString()).
 // Re-entrance: VTK's range computations run vtkSMPTools on TBB, so a thread waiting inside
-// Write() may start another write_polydata() of the same parallel loop. That is safe because a
-// call moves the buffer into its own stream first and takes it back only after its Write(), and
-// nothing between taking it back and the file write waits on TBB.
+// Write() may start another write_polydata() of the same parallel loop on the same thread. The
+// buffer is therefore only borrowed: moved into the call's own stream before encoding and given
+// back after the file is written, never used in place across a call that can wait on TBB.
 std::string& get_encoding_buffer() {
   thread_local std::string buffer;
   return buffer;
@@ -212,9 +212,9 @@ void write_polydata(const std::filesystem::path& path, const PolyData& data, Vtp
   if (writer->Write() != 1 || !log.text.empty())
     throw_bad_input("VTK could not encode the file: " + (log.text.empty() ? "unknown error" : log.text),
                     {.file = path.string(), .suggestion = "report this with the scene that produced it"});
-  buffer = std::move(stream).str();
-  write_file_atomically(path, [&](std::ostream& out) { out.write(buffer.data(), static_cast<std::streamsize>(buffer.size())); });
-  if (buffer.capacity() > (std::size_t{64} << 20)) std::string().swap(buffer);  // not kept for a rare huge file
+  std::string bytes = std::move(stream).str();
+  write_file_atomically(path, [&](std::ostream& out) { out.write(bytes.data(), static_cast<std::streamsize>(bytes.size())); });
+  if (bytes.capacity() <= (std::size_t{64} << 20)) buffer = std::move(bytes);  // not kept for a rare huge file
 }
 
 PolyData read_polydata(const std::filesystem::path& path) {

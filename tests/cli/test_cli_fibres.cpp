@@ -232,4 +232,11 @@ TEST(CliFibres, PennationPlaneIsSelectable) {
                      "--out " + (dir / "f.vtp").string());
   EXPECT_EQ(r.code, 2) << r.out;
   EXPECT_NE(r.out.find("--aponeurosis"), std::string::npos) << r.out;
+  // ... and the line-of-action reference (against the aponeuroses it is documented as worse).
+  r = run_fibres_cli("--mesh " + ta_mesh() + " --units mm --attachments aponeurosis --architecture "
+                     "bipennate --pennation-deg 9.6 --aponeurosis " + apo + " --method harmonic "
+                     "--pennation-reference aponeurosis --pennation-plane sheet-border --out " +
+                     (dir / "f.vtp").string());
+  EXPECT_EQ(r.code, 2) << r.out;
+  EXPECT_NE(r.out.find("--pennation-reference line"), std::string::npos) << r.out;
 }

@@ -1,5 +1,6 @@
 // PolyData .vtp output read back by VTK's own reader, .pvd collections, atomic writes.
 #include "fascicle/core/error.hpp"
+#include "fascicle/core/parallel.hpp"
 #include "fascicle/geometry/primitives.hpp"
 #include "fascicle/io/polydata.hpp"
 #include "fascicle/io/vtk_series.hpp"
@@ -9,6 +10,8 @@
 #include <gtest/gtest.h>
 
 #include <fstream>
+#include <string>
+#include <thread>
 
 namespace fs = std::filesystem;
 using namespace fascicle;
@@ -200,12 +203,28 @@ TEST(VtkSeries, SmallFileAfterLargeOneHasTheSameBytes) {
     return std::string(std::istreambuf_iterator<char>(in), {});
   };
   const PolyData small = make_sample();
-  write_polydata(dir / "small_first.vtp", small);
   PolyData large = make_polydata(make_icosphere(0.05, 5));
   large.point_fields = {{"x", large.points.col(0)}};
+  // References from fresh threads (each with a new, empty encoding buffer).
+  std::thread([&] { write_polydata(dir / "small_first.vtp", small); }).join();
+  std::thread([&] { write_polydata(dir / "large_first.vtp", large, VtpCompression::none); }).join();
   write_polydata(dir / "large.vtp", large, VtpCompression::none);
   write_polydata(dir / "small_after.vtp", small);
   EXPECT_GT(fs::file_size(dir / "large.vtp"), 10 * fs::file_size(dir / "small_first.vtp"));
   EXPECT_EQ(read_bytes(dir / "small_after.vtp"), read_bytes(dir / "small_first.vtp"));
   EXPECT_EQ(read_polydata(dir / "small_after.vtp").points, small.points);
+  // Written concurrently (two threads, large and small interleaved, VTK's own TBB work inside):
+  // every file has its reference's bytes.
+  const ThreadLimit two(2);
+  parallel_for(16, [&](std::size_t i) {
+    const fs::path file = dir / ("parallel_" + std::to_string(i) + ".vtp");
+    if (i % 2 == 0)
+      write_polydata(file, large, VtpCompression::none);
+    else
+      write_polydata(file, small);
+  });
+  for (std::size_t i = 0; i < 16; ++i)
+    EXPECT_EQ(read_bytes(dir / ("parallel_" + std::to_string(i) + ".vtp")),
+              read_bytes(dir / (i % 2 == 0 ? "large_first.vtp" : "small_first.vtp")))
+        << i;
 }

@@ -48,7 +48,8 @@ struct SurfaceFirstOptions {
   // last contact factor) by at most this many vertices, the factor is corrected by a low-rank
   // (Woodbury) update instead of a numeric refactorisation; 0 always refactorises. (32 until
   // session 10, when the supernodal correction moved between the triangular solves and its
-  // columns became sparse: docs/deformation.md.)
+  // columns became sparse: docs/deformation.md. The simplicial fallback, whose columns are dense
+  // full solves, stays at 32 whatever this says.)
   int max_low_rank = 128;
   int max_volume_iterations = 10;     // Gauss-Newton iterations on the volume constraint
   // Stop when the relative change of the volume gradient between iterations (the relative KKT

@@ -164,9 +164,9 @@ Vec3 calc_sheet_normal(const TriMesh& sheet);
 // distal third lies from its mean (a sheet narrows into its tendon there, as the tibialis
 // anterior's central aponeurosis, whose tendon appears on the anterior surface distally); the
 // sheet points (metres, #N x 3) are binned along z over the sheet's own extent, and the border is,
-// per non-empty bin, the point farthest to that side. Throws bad_input for fewer than 3 points,
-// `bins` < 2, or a sheet whose distal third leans to neither side (shift below 2 % of its mean
-// width: no tendon side to turn to).
+// per non-empty bin, the point farthest to that side. Throws bad_input for fewer than 3 points or
+// a sheet whose distal third leans to neither side (shift below 2 % of its mean width: no tendon
+// side to turn to); usage for `bins` < 2 and for a zero thickness direction or one along the axis.
 Points3 find_aponeurosis_border(const TriMesh& muscle, const Points3& sheet,
                                 const Vec3& thickness_direction,
                                 const Vec3& origin_towards = Vec3::UnitZ(), int bins = 50);

@@ -76,8 +76,9 @@ struct HarmonicOptions {
   Vec3 transverse_direction = Vec3::Zero();
   // Non-empty (pennate fields; metres, #N x 3): points the fibres turn towards, e.g. the tendon-side
   // border of an interior aponeurosis (find_aponeurosis_border). The transverse direction at a point
-  // is then the direction to the nearest of these points, made normal to e_l (resp. e_a); it
-  // replaces transverse_direction. For the tibialis anterior the DTI tracts approach the central
+  // is then the direction to the nearest of these points, made normal to e_l; it replaces
+  // transverse_direction. With PennationReference::aponeurosis that direction is used as e_n itself
+  // (Bolsterlee TA 18.1 deg from the tracts, against 12.8: the CLI refuses the combination). For the tibialis anterior the DTI tracts approach the central
   // aponeurosis and drift towards the side where it becomes the tendon, about equally
   // (docs/fibres.md, "Session 10").
   Points3 transverse_targets = Points3(0, 3);

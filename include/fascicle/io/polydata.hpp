@@ -39,8 +39,9 @@ PolyData make_polydata(const TriMesh& mesh);
 void check_polydata(const PolyData& data);
 
 // How the arrays of a .vtp are stored. LZ4 pays where an array repeats itself (a field constant
-// over the cells); coordinates, displacements and triangle ids of real meshes do not compress
-// (< 5 %), and there it only costs time. VTK's readers and ParaView read both.
+// over the cells); coordinates, displacements and triangle ids of segmented meshes hardly compress
+// (VH bones 1.9 %; regular procedural meshes do, the demo's bones by 20 %), and LZ4 costs system
+// time (a buffer per 32 KiB block). VTK's readers and ParaView read both.
 enum class VtpCompression { lz4, none };
 
 // Writes a .vtp: VTK encodes it into a buffer in memory (one per thread, reused from file to file),
