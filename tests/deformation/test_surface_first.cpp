@@ -8,6 +8,7 @@
 
 #include <cmath>
 #include <functional>
+#include <string>
 
 namespace fascicle {
 namespace {
@@ -241,12 +242,17 @@ TEST(SurfaceFirstContact, LowRankContactUpdatesMatchRefactorisation) {
   const MeshQuery bone(ball);
   // Both factor kinds: the supernodal one corrects between its triangular solves (sparse columns
   // of L^-1 U), the simplicial LDL^T one after its solve (dense columns of K^-1 U).
+  // Rank limits 32 (every correction relative to the contact-free factor here) and 4 (the limit is
+  // hit: refactorisations with contacts, then corrections relative to that factor, adding and
+  // removing contacts).
+  for (const int limit : {32, 4})
   for (const SparseSolverKind kind : {SparseSolverKind::cholmod_supernodal, SparseSolverKind::eigen_simplicial_ldlt}) {
     SCOPED_TRACE(kind == SparseSolverKind::cholmod_supernodal ? "supernodal" : "simplicial LDLT");
+    SCOPED_TRACE("max_low_rank " + std::to_string(limit));
     SurfaceFirstOptions refactorise, low_rank;
     refactorise.sparse_solver = low_rank.sparse_solver = kind;
     refactorise.max_low_rank = 0;
-    low_rank.max_low_rank = 32;
+    low_rank.max_low_rank = limit;
     const SurfaceBinding b0 = bind_surface(muscle, line, areas, {&bone}, refactorise);
     const SurfaceBinding b1 = bind_surface(muscle, line, areas, {&bone}, low_rank);
     SurfaceFirstSolver s0(b0, {&bone}), s1(b1, {&bone});
@@ -283,6 +289,7 @@ TEST(SurfaceFirstContact, LowRankContactUpdatesMatchRefactorisation) {
     EXPECT_EQ(s0.get_info().low_rank_updates, 0);
     EXPECT_GT(s1.get_info().low_rank_updates, 10);
     EXPECT_LT(s1.get_info().factorisations, s0.get_info().factorisations);
+    if (limit == 4) EXPECT_GE(s1.get_info().factorisations, 3);  // the base and >= 2 with contacts
     std::printf("ball pressed 0 -> 5 -> 0 mm in 41 frames: %d refactorisations, or %d with %d low-rank updates; "
                 "max vertex difference %.2g m\n",
                 s0.get_info().factorisations, s1.get_info().factorisations, s1.get_info().low_rank_updates,
