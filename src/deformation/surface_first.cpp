@@ -587,11 +587,16 @@ void SurfaceFirstSolver::prepare_factor(const std::vector<int>& wanted) {
   const std::size_t to_contacts = analysed_contacts_ ? diff_from(factorised_contacts_) : to_base + 1;
   // The supernodal path corrects with sparse columns L^-1 e_j (cheap, session 10); the simplicial
   // fallback keeps dense columns K^-1 e_j (one full solve each, up to 8 x limit of n doubles cached),
-  // so it keeps the rank bound of before (32) whatever the option says.
+  // so it keeps the rank bound of before (32) whatever the option says. The bound is per factor:
+  // the fallback may hold only for the factor with contacts (factorise()).
   constexpr std::size_t kDenseLowRankLimit = 32;
   const auto option_limit = static_cast<std::size_t>(std::max(0, b.options.max_low_rank));
-  const auto limit = f.base.is_own_supernodal() ? option_limit : std::min(option_limit, kDenseLowRankLimit);
-  if (std::min(to_base, to_contacts) > limit) {
+  const auto limit_of = [&](const SparseCholesky& s) {
+    return s.is_own_supernodal() ? option_limit : std::min(option_limit, kDenseLowRankLimit);
+  };
+  const bool base_ok = to_base <= limit_of(f.base);
+  const bool contacts_ok = analysed_contacts_ && to_contacts <= limit_of(f.with_contacts);
+  if (!base_ok && !contacts_ok) {
     factorise();
     f.use_contacts = true;
     f.column_of[1].clear();
@@ -599,7 +604,8 @@ void SurfaceFirstSolver::prepare_factor(const std::vector<int>& wanted) {
     f.unit_columns[1].clear();
     return;
   }
-  f.use_contacts = to_contacts < to_base;
+  f.use_contacts = contacts_ok && (!base_ok || to_contacts < to_base);
+  const std::size_t limit = limit_of(f.use_contacts ? f.with_contacts : f.base);
   if (!f.use_contacts) diff_from({});
   if (added.empty() && removed.empty()) return;
 

@@ -13,6 +13,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 using namespace fascicle;
 
 namespace {
@@ -142,6 +144,35 @@ TEST(MuscleOverlap, CacheAndThreadCountDoNotChangeResults) {
       fresh.muscles = state.muscles;
       for (MuscleFrame& mf : fresh.muscles) mf.max_muscle_overlap_m = mf.max_muscle_overlap_growth_m = MuscleFrame::nan;
       calc_muscle_overlaps(model, fresh);
+      // The bounds carried through the moving frames (widened by both surfaces' motion) stay true
+      // upper bounds on the current surfaces, through a point of their named triangle.
+      const MuscleOverlapCache& cache = state.overlap_cache;
+      const size_t n = model.muscles.size();
+      int checked = 0;
+      for (size_t a = 0; a < n; ++a)
+        for (size_t b = 0; b < n; ++b) {
+          if (a == b || a * n + b >= cache.depth_bound.size()) continue;
+          const std::vector<DepthBound>& ub = cache.depth_bound[a * n + b];
+          if (ub.empty()) continue;
+          const Points3& Va = cache.previous[a];
+          const TriMesh Sb{cache.previous[b], model.muscles[b].rest_mesh.F};
+          const MeshQuery qb(Sb);
+          for (Eigen::Index i = 0; i < Va.rows(); ++i) {
+            const DepthBound& d = ub[static_cast<size_t>(i)];
+            if (!std::isfinite(d.bound)) continue;
+            ++checked;
+            const Vec3 x = Va.row(i).transpose();
+            EXPECT_GE(d.bound * (1.0 + 1e-12), qb.calc_closest_point(x).distance) << "frame " << f << " vertex " << i;
+            ASSERT_GE(d.triangle, 0);
+            const TrianglePoint on = closest_point_on_triangle(x, Sb.V.row(Sb.F(d.triangle, 0)).transpose(),
+                                                               Sb.V.row(Sb.F(d.triangle, 1)).transpose(),
+                                                               Sb.V.row(Sb.F(d.triangle, 2)).transpose());
+            EXPECT_GE(d.bound * (1.0 + 1e-12), (x - on.point).norm()) << "frame " << f << " vertex " << i;
+          }
+        }
+      if (f > 0) {
+        EXPECT_GT(checked, 0) << "frame " << f;
+      }
       for (size_t m = 0; m < model.muscles.size(); ++m) {
         EXPECT_EQ(fresh.muscles[m].max_muscle_overlap_m, state.muscles[m].max_muscle_overlap_m)
             << "frame " << f << " muscle " << m;

@@ -127,9 +127,9 @@ struct FibresFirstOptions {
   // vertex against the opposite face's three particles with their barycentric weights); see
   // docs/representations.md, "Surface particles". Off by default: with separate_surfaces it
   // brings the VH shank's scene overlap from 8.3 mm to 0 at every frame (volume <= 3e-4,
-  // penetration 0) but costs about 1.7x the default path's CPU time per frame (session 10, at
-  // load 4-6: 13.2 ms against main's 15.9 ms with separation; idle, session 9: 14.6-14.8 ms
-  // against 7.3-7.5 ms), and on gait2392's generated bellies the separation fails the volume hold
+  // penetration 0) but costs about 1.8x the default path's CPU time per frame (idle, end of
+  // session 10, alternated runs: 14.0-14.1 ms against 7.3-8.0 ms; docs/benchmarks.md), and on
+  // gait2392's generated bellies the separation fails the volume hold
   // at frame 42 (semimem_r; session 9: frame 21; the synthetic leg of scene/demo.hpp, which
   // failed at frame 39 at 25 Hz in session 9, was not re-measured).
   bool surface_particles = false;
