@@ -30,6 +30,7 @@
 #include "fascicle/io/mesh_io.hpp"
 
 #include "../../src/fibres/point_index.hpp"
+#include "tet_fields.hpp"
 
 #include <fmt/format.h>
 
@@ -41,6 +42,7 @@
 #include <vector>
 
 using namespace fascicle;
+using namespace fascicle::diagnostics;
 
 namespace {
 
@@ -51,32 +53,6 @@ const char* const candidate_names[candidates] = {"C0 thickness plane", "C1 towar
                                                  "C2 crossing level sets", "C3 sheets' normals",
                                                  "C4 origin-face convergence",
                                                  "C5 sheet border"};
-
-double calc_line_angle(const Vec3& a, const Vec3& b) {
-  return std::acos(std::min(1.0, std::abs(a.normalized().dot(b.normalized()))));
-}
-
-Points3 calc_tet_gradients(const TetMesh& m, const VecX& u) {
-  Points3 G(m.num_tets(), 3);
-  for (Eigen::Index t = 0; t < m.num_tets(); ++t) {
-    const Vec3 x0 = m.V.row(m.T(t, 0));
-    Mat3 D;
-    Vec3 du;
-    for (int k = 0; k < 3; ++k) {
-      D.row(k) = m.V.row(m.T(t, k + 1)) - x0.transpose();
-      du(k) = u(m.T(t, k + 1)) - u(m.T(t, 0));
-    }
-    G.row(t) = D.partialPivLu().solve(du).transpose();
-  }
-  return G;
-}
-
-Points3 calc_tet_centroids(const TetMesh& m) {
-  Points3 C = Points3::Zero(m.num_tets(), 3);
-  for (Eigen::Index t = 0; t < m.num_tets(); ++t)
-    for (int k = 0; k < 4; ++k) C.row(t) += 0.25 * m.V.row(m.T(t, k));
-  return C;
-}
 
 // Surface faces (centroids, area-weighted normals) for smoothed normals.
 struct Faces {

@@ -239,6 +239,23 @@ bool use_avx2(SupernodalSolveWorkspace& workspace) {
   return workspace.kernel == SupernodalKernel::avx2;
 }
 
+// What every solve entry point needs of the factor: its size, the kernel, the fill-reducing
+// permutation, and a gather buffer for `chunk` columns of at most n rows of a supernode.
+struct FactorPass {
+  const cholmod_factor& L;
+  int n;
+  bool avx2;
+  const int* perm;
+  bool permuted;
+};
+FactorPass begin_factor_pass(const void* factor, std::size_t chunk, SupernodalSolveWorkspace& workspace) {
+  const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
+  const int n = static_cast<int>(L.n);
+  if (workspace.gathered.size() < chunk * n) workspace.gathered.resize(chunk * n);
+  const int* perm = static_cast<const int*>(L.Perm);
+  return {L, n, use_avx2(workspace), perm, perm && L.ordering != CHOLMOD_NATURAL};
+}
+
 }  // namespace
 
 bool is_supernodal_llt(const void* factor) {
@@ -250,14 +267,8 @@ bool is_supernodal_llt(const void* factor) {
 bool solve_supernodal_llt(const void* factor, double* B, int ncols, int ld,
                           SupernodalSolveWorkspace& workspace) {
   if (!is_supernodal_llt(factor)) return false;
-  const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
-  const int n = static_cast<int>(L.n);
-  const bool avx2 = use_avx2(workspace);
   const std::size_t chunk = static_cast<std::size_t>(std::min(ncols, kMaxBlock));
-  // At most kMaxBlock columns of at most n rows of a supernode.
-  if (workspace.gathered.size() < chunk * n) workspace.gathered.resize(chunk * n);
-  const int* perm = static_cast<const int*>(L.Perm);
-  const bool permuted = perm && L.ordering != CHOLMOD_NATURAL;
+  const auto [L, n, avx2, perm, permuted] = begin_factor_pass(factor, chunk, workspace);
   if (permuted && workspace.permuted.size() < chunk * n) workspace.permuted.resize(chunk * n);
   double* b[kMaxBlock];
   for (int c0 = 0; c0 < ncols; c0 += kMaxBlock) {
@@ -310,13 +321,8 @@ SupernodalTree make_supernodal_tree(const void* factor) {
 bool solve_supernodal_forward(const void* factor, const double* B, int ncols, int ldb, double* Y,
                               SupernodalSolveWorkspace& workspace) {
   if (!is_supernodal_llt(factor)) return false;
-  const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
-  const int n = static_cast<int>(L.n);
-  const bool avx2 = use_avx2(workspace);
-  if (workspace.gathered.size() < static_cast<std::size_t>(std::min(ncols, kMaxBlock)) * n)
-    workspace.gathered.resize(static_cast<std::size_t>(std::min(ncols, kMaxBlock)) * n);
-  const int* perm = static_cast<const int*>(L.Perm);
-  const bool permuted = perm && L.ordering != CHOLMOD_NATURAL;
+  const auto [L, n, avx2, perm, permuted] =
+      begin_factor_pass(factor, static_cast<std::size_t>(std::min(ncols, kMaxBlock)), workspace);
   double* y[kMaxBlock];
   for (int c0 = 0; c0 < ncols; c0 += kMaxBlock) {
     const int nr = std::min(kMaxBlock, ncols - c0);
@@ -333,13 +339,8 @@ bool solve_supernodal_forward(const void* factor, const double* B, int ncols, in
 bool solve_supernodal_backward(const void* factor, double* Y, int ncols, double* X, int ldx,
                                SupernodalSolveWorkspace& workspace) {
   if (!is_supernodal_llt(factor)) return false;
-  const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
-  const int n = static_cast<int>(L.n);
-  const bool avx2 = use_avx2(workspace);
-  if (workspace.gathered.size() < static_cast<std::size_t>(std::min(ncols, kMaxBlock)) * n)
-    workspace.gathered.resize(static_cast<std::size_t>(std::min(ncols, kMaxBlock)) * n);
-  const int* perm = static_cast<const int*>(L.Perm);
-  const bool permuted = perm && L.ordering != CHOLMOD_NATURAL;
+  const auto [L, n, avx2, perm, permuted] =
+      begin_factor_pass(factor, static_cast<std::size_t>(std::min(ncols, kMaxBlock)), workspace);
   double* y[kMaxBlock];
   for (int c0 = 0; c0 < ncols; c0 += kMaxBlock) {
     const int nr = std::min(kMaxBlock, ncols - c0);
@@ -357,12 +358,9 @@ bool solve_supernodal_unit_forward(const void* factor, const SupernodalTree& tre
                                    int count, UnitForwardColumn* out,
                                    SupernodalSolveWorkspace& workspace) {
   if (!is_supernodal_llt(factor)) return false;
-  const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
-  const int n = static_cast<int>(L.n), ns = static_cast<int>(L.nsuper);
+  const auto [L, n, avx2, perm, permuted] = begin_factor_pass(factor, kMaxBlock, workspace);
+  const int ns = static_cast<int>(L.nsuper);
   const int* super = static_cast<const int*>(L.super);
-  const bool avx2 = use_avx2(workspace);
-  if (workspace.gathered.size() < static_cast<std::size_t>(kMaxBlock) * n)
-    workspace.gathered.resize(static_cast<std::size_t>(kMaxBlock) * n);
   // Zero columns (kept zero between calls) and the union of the columns' supernode chains.
   if (workspace.unit.size() < static_cast<std::size_t>(kMaxBlock) * n)
     workspace.unit.assign(static_cast<std::size_t>(kMaxBlock) * n, 0.0);
