@@ -526,7 +526,9 @@ Eigen::MatrixXd SurfaceFirstSolver::solve(const Eigen::MatrixXd& rhs) const {
     const auto n = rhs.rows(), nc = rhs.cols();
     Eigen::MatrixXd z(n, nc), x(n, nc);
     const void* L = active.cholmod.get_factor();
-    solve_supernodal_forward(L, rhs.data(), static_cast<int>(nc), static_cast<int>(n), z.data(), active.workspace);
+    // F is filled only for the own supernodal LL^T (prepare_factor), whose halves cannot refuse.
+    if (!solve_supernodal_forward(L, rhs.data(), static_cast<int>(nc), static_cast<int>(n), z.data(), active.workspace))
+      throw_internal("surface-first: sparse low-rank columns without a supernodal LL^T factor");
     const auto r = static_cast<Eigen::Index>(f.F.size());
     const int* super = active.tree_super();
     Eigen::MatrixXd t(r, nc);
@@ -556,7 +558,8 @@ Eigen::MatrixXd SurfaceFirstSolver::solve(const Eigen::MatrixXd& rhs) const {
         }
       }
     }
-    solve_supernodal_backward(L, z.data(), static_cast<int>(nc), x.data(), static_cast<int>(n), active.workspace);
+    if (!solve_supernodal_backward(L, z.data(), static_cast<int>(nc), x.data(), static_cast<int>(n), active.workspace))
+      throw_internal("surface-first: sparse low-rank columns without a supernodal LL^T factor");
     return x;
   }
   Eigen::MatrixXd y = active.solve(rhs);
