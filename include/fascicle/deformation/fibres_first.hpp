@@ -292,7 +292,9 @@ struct FibresFirstInfo {
   // first (taken while some muscle's volume is off by more than volume_tolerance)
   int final_passes = 0;
   // Stopping measure of the last local/global iteration: the largest particle displacement of
-  // that iteration divided by the muscle's mean rest spring length (max over muscles).
+  // that iteration divided by the muscle's mean rest spring length (max over muscles; a muscle
+  // resting in that iteration — converged, stalled, or not woken this round — counts with the step
+  // of its last iteration).
   double residual = std::numeric_limits<double>::quiet_NaN();
 };
 
