@@ -331,21 +331,37 @@ TEST(FibresFirst, NoParticleEndsInsideABone) {
   EXPECT_LT(solver.get_particles().col(0).minCoeff(), -0.006);
 }
 
+// Two 3 x 3 bundles of length L = 60 mm crossing at right angles: A along z between the bones 0
+// (below) and 1 (above), B along y with its axis at x = x0, between the bones 2 and 3; with
+// `surfaces`, each gets a box rest surface 1.5 mm outside its outer particles.
+struct CrossingBundles {
+  static constexpr double L = 0.06, gap = 0.003, half = 0.0045;
+  MeshQuery a0, a1, b0, b1;
+  FibreBundleSpec A, B;
+  CrossingBundles(double x0, bool surfaces)
+      : a0(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, -0.005))),
+        a1(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, L + 0.005))),
+        b0(moved(make_box(Vec3(0.01, 0.005, 0.01)), Vec3(x0, -L / 2 - 0.005, L / 2))),
+        b1(moved(make_box(Vec3(0.01, 0.005, 0.01)), Vec3(x0, L / 2 + 0.005, L / 2))),
+        A{"A", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 3, 3, gap), 0, 1},
+        B{"B", make_bundle(Vec3(x0, -L / 2, L / 2), Vec3::UnitY(), Vec3::UnitX(), L, 3, 3, gap), 2, 3} {
+    if (!surfaces) return;
+    A.rest_surface = moved(make_box(Vec3(half, half, L / 2)), Vec3(0, 0, L / 2));
+    B.rest_surface = moved(make_box(Vec3(half, L / 2, half)), Vec3(x0, 0, L / 2));
+  }
+  FibresFirstModel build(const FibresFirstOptions& o) const {
+    return build_fibres_first_model({A, B}, {&a0, &a1, &b0, &b1}, o);
+  }
+};
+
 // Two bundles crossing at right angles, the second pulled across the first by 8 mm: no particle
 // of one ends inside the other's surface, and pairs keep their minimum distance.
 TEST(FibresFirst, BundlesPressedTogetherDoNotInterpenetrate) {
-  const double L = 0.06, gap = 0.003;
-  const MeshQuery a0(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, -0.005)));
-  const MeshQuery a1(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, L + 0.005)));
-  const double x0 = 0.008;  // second bundle's axis, beside the first (half widths 3 mm each)
-  const MeshQuery b0(moved(make_box(Vec3(0.01, 0.005, 0.01)), Vec3(x0, -L / 2 - 0.005, L / 2)));
-  const MeshQuery b1(moved(make_box(Vec3(0.01, 0.005, 0.01)), Vec3(x0, L / 2 + 0.005, L / 2)));
+  const CrossingBundles bundles(0.008, false);  // B's axis beside A (half widths 3 mm each)
   FibresFirstOptions o;
   o.particles_per_fibre = 21;  // 3 mm along the fibres, as across
   o.muscle_margin_m = 0.0025;
-  const FibreBundleSpec A{"A", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 3, 3, gap), 0, 1};
-  const FibreBundleSpec B{"B", make_bundle(Vec3(x0, -L / 2, L / 2), Vec3::UnitY(), Vec3::UnitX(), L, 3, 3, gap), 2, 3};
-  const FibresFirstModel model = build_fibres_first_model({A, B}, {&a0, &a1, &b0, &b1}, o);
+  const FibresFirstModel model = bundles.build(o);
   FibresFirstSolver solver(model);
   for (int k = 1; k <= 8; ++k) {
     const Transform T = translation(Vec3(-0.001 * k, 0, 0));
@@ -365,7 +381,7 @@ TEST(FibresFirst, BundlesPressedTogetherDoNotInterpenetrate) {
   // without contact handling the same motion interpenetrates (the test can fail)
   FibresFirstOptions off = o;
   off.muscle_margin_m = 0.0;
-  const FibresFirstModel loose = build_fibres_first_model({A, B}, {&a0, &a1, &b0, &b1}, off);
+  const FibresFirstModel loose = bundles.build(off);
   FibresFirstSolver free_solver(loose);
   for (int k = 1; k <= 8; ++k) {
     const Transform T = translation(Vec3(-0.001 * k, 0, 0));
@@ -396,17 +412,8 @@ double calc_deepest_vertex_inside(const Points3& vertices, const MeshQuery& othe
 // the last frame. With separate_surfaces it asserts <= 0.5 mm at every frame; with
 // surface_particles also that every fibre particle stays inside its own surface (<= 0.1 mm out).
 int press_crossing_bundles(const FibresFirstOptions& o, std::vector<double>& deepest, int* iterations = nullptr) {
-  const double L = 0.06, gap = 0.003, half = 0.0045;
-  const MeshQuery a0(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, -0.005)));
-  const MeshQuery a1(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, L + 0.005)));
-  const double x0 = 0.010;  // surfaces 1 mm apart at rest
-  const MeshQuery b0(moved(make_box(Vec3(0.01, 0.005, 0.01)), Vec3(x0, -L / 2 - 0.005, L / 2)));
-  const MeshQuery b1(moved(make_box(Vec3(0.01, 0.005, 0.01)), Vec3(x0, L / 2 + 0.005, L / 2)));
-  FibreBundleSpec A{"A", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 3, 3, gap), 0, 1};
-  A.rest_surface = moved(make_box(Vec3(half, half, L / 2)), Vec3(0, 0, L / 2));
-  FibreBundleSpec B{"B", make_bundle(Vec3(x0, -L / 2, L / 2), Vec3::UnitY(), Vec3::UnitX(), L, 3, 3, gap), 2, 3};
-  B.rest_surface = moved(make_box(Vec3(half, L / 2, half)), Vec3(x0, 0, L / 2));
-  const FibresFirstModel model = build_fibres_first_model({A, B}, {&a0, &a1, &b0, &b1}, o);
+  const CrossingBundles bundles(0.010, true);  // surfaces 1 mm apart at rest
+  const FibresFirstModel model = bundles.build(o);
   EXPECT_TRUE(model.muscles[0].surface_from_rest_mesh && model.muscles[1].surface_from_rest_mesh);
   FibresFirstSolver solver(model);
   const int fibre_particles = 9 * o.particles_per_fibre;
@@ -538,20 +545,12 @@ TEST(FibresFirst, StallRuleKeepsSurfaceParticlesSeparated) {
 // measurable while B is pressed 3 mm further into A; what grows beyond the rest depth is held
 // within 0.5 mm.
 TEST(FibresFirst, SurfaceOverlapMeasureMatchesAnIndependentOne) {
-  const double L = 0.06, gap = 0.003, half = 0.0045, x0 = 0.0075;
-  const MeshQuery a0(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, -0.005)));
-  const MeshQuery a1(moved(make_box(Vec3(0.01, 0.01, 0.005)), Vec3(0, 0, L + 0.005)));
-  const MeshQuery b0(moved(make_box(Vec3(0.01, 0.005, 0.01)), Vec3(x0, -L / 2 - 0.005, L / 2)));
-  const MeshQuery b1(moved(make_box(Vec3(0.01, 0.005, 0.01)), Vec3(x0, L / 2 + 0.005, L / 2)));
-  FibreBundleSpec A{"A", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 3, 3, gap), 0, 1};
-  A.rest_surface = moved(make_box(Vec3(half, half, L / 2)), Vec3(0, 0, L / 2));
-  FibreBundleSpec B{"B", make_bundle(Vec3(x0, -L / 2, L / 2), Vec3::UnitY(), Vec3::UnitX(), L, 3, 3, gap), 2, 3};
-  B.rest_surface = moved(make_box(Vec3(half, L / 2, half)), Vec3(x0, 0, L / 2));
+  const CrossingBundles bundles(0.0075, true);
   FibresFirstOptions o;
   o.surface_particles = true;
   o.separate_surfaces = true;
   o.surface_rest_overlap_resolved_m = 1e-3;
-  const FibresFirstModel model = build_fibres_first_model({A, B}, {&a0, &a1, &b0, &b1}, o);
+  const FibresFirstModel model = bundles.build(o);
   FibresFirstSolver solver(model);
   double largest = 0.0;
   for (int k = 0; k <= 6; ++k) {
