@@ -7,6 +7,7 @@
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/parallel.hpp"
 #include "fascicle/deformation/mesh_operators.hpp"
+#include "fascicle/sparse/simplicial_solve.hpp"
 
 #include <Eigen/SVD>
 #include <cholmod.h>
@@ -147,9 +148,14 @@ class LdlFactor {
     return ok;
   }
 
-  // Solves K X = B in place (B: n x any columns). The solution and CHOLMOD's solve workspaces
-  // are kept between calls (cholmod_solve2), so a solve allocates nothing once warm.
+  // Solves K X = B in place (B: n x any columns). Up to eight columns go through
+  // fascicle/sparse's simplicial kernel in one pass over the factor (the same bits as CHOLMOD's
+  // solve, which takes four columns per pass); more through cholmod_solve2, whose solution and
+  // workspaces are kept between calls. Either way a solve allocates nothing once warm.
   void solve(Eigen::MatrixXd& B) {
+    if (solve_simplicial_ldlt(L_, B.data(), static_cast<int>(B.cols()), static_cast<int>(B.rows()),
+                              own_solve_))
+      return;
     cholmod_dense b{};
     b.nrow = static_cast<std::size_t>(B.rows());
     b.ncol = static_cast<std::size_t>(B.cols());
@@ -169,6 +175,7 @@ class LdlFactor {
   cholmod_common c_;
   cholmod_factor* L_ = nullptr;
   cholmod_dense *X_ = nullptr, *Y_ = nullptr, *E_ = nullptr;  // cholmod_solve2 workspaces
+  SimplicialSolveWorkspace own_solve_;
   std::vector<int> position_;  // per unknown: its row in the permuted factor
 };
 
