@@ -86,60 +86,77 @@ template <int W>
   }
 }
 
-// D Lᵀ x = y for four columns of X (rows of `stride` doubles), from the last column back, with
-// the chains of forward_unit seen from their last column, of at most MaxChain columns: CHOLMOD's
+// D Lᵀ x = y for four columns of X (rows of `stride` doubles): one group of columns from column j
+// back, alone or the chain of two or three columns that ends at j (forward_unit's chains seen
+// from their last column), at most MaxChain long; returns the next column. CHOLMOD's
 // ldl_dltsolve kernels chain up to three columns for one to three right-hand sides and up to two
 // for four, and the grouping decides the order of the operations, so a column gets CHOLMOD's bits
 // only with the chain length of the group CHOLMOD solves it in (solve_simplicial_ldlt). Per
-// column: y_j / d_j minus the dot product with the rows below, then the chain's own columns.
+// column: y_j / d_j minus the dot product with the rows below, then the chain's own columns. A
+// group reads only rows below its columns, so groups of different columns of X may interleave.
+template <int MaxChain>
+[[gnu::always_inline]] inline int backward_group(const int* Lp, const int* Li, const int* Lnz,
+                                                 const double* Lx, int j, double* X, int stride) {
+  auto row = [X, stride](int k) { return X + static_cast<std::ptrdiff_t>(k) * stride; };
+  int p = Lp[j];
+  const int lnz = Lnz[j], pend = p + lnz;
+  if (j < 4 || lnz != Lnz[j - 1] - 1 || Li[Lp[j - 1] + 1] != j) {
+    V4d y = load<1>(row(j)).v[0] / Lx[p];
+    for (++p; p < pend; ++p) y = y - Lx[p] * load<1>(row(Li[p])).v[0];
+    store<1>(row(j), Row<1>{{y}});
+    return j - 1;
+  }
+  if (MaxChain == 2 || lnz != Lnz[j - 2] - 2 || Li[Lp[j - 2] + 2] != j) {
+    int q = Lp[j - 1];
+    const double t = Lx[q + 1];
+    V4d y0 = load<1>(row(j)).v[0] / Lx[p];
+    V4d y1 = load<1>(row(j - 1)).v[0] / Lx[q];
+    for (++p, q += 2; p < pend; ++p, ++q) {
+      const V4d x = load<1>(row(Li[p])).v[0];
+      y0 = y0 - Lx[p] * x;
+      y1 = y1 - Lx[q] * x;
+    }
+    y1 = y1 - t * y0;
+    store<1>(row(j), Row<1>{{y0}});
+    store<1>(row(j - 1), Row<1>{{y1}});
+    return j - 2;
+  }
+  int q = Lp[j - 1], r = Lp[j - 2];
+  const double t0 = Lx[q + 1], t1 = Lx[r + 1], t2 = Lx[r + 2];
+  V4d y0 = load<1>(row(j)).v[0] / Lx[p];
+  V4d y1 = load<1>(row(j - 1)).v[0] / Lx[q];
+  V4d y2 = load<1>(row(j - 2)).v[0] / Lx[r];
+  for (++p, q += 2, r += 3; p < pend; ++p, ++q, ++r) {
+    const V4d x = load<1>(row(Li[p])).v[0];
+    y0 = y0 - Lx[p] * x;
+    y1 = y1 - Lx[q] * x;
+    y2 = y2 - Lx[r] * x;
+  }
+  y1 = y1 - t0 * y0;
+  y2 = y2 - (t2 * y0 + t1 * y1);
+  store<1>(row(j), Row<1>{{y0}});
+  store<1>(row(j - 1), Row<1>{{y1}});
+  store<1>(row(j - 2), Row<1>{{y2}});
+  return j - 3;
+}
+
+// All columns of one four-wide half of X, the last column first.
 template <int MaxChain>
 [[gnu::always_inline]] inline void backward_diagonal(const int* Lp, const int* Li, const int* Lnz,
                                                      const double* Lx, int n, double* X, int stride) {
-  auto row = [&](int k) { return X + static_cast<std::ptrdiff_t>(k) * stride; };
-  for (int j = n - 1; j >= 0;) {
-    int p = Lp[j];
-    const int lnz = Lnz[j], pend = p + lnz;
-    if (j < 4 || lnz != Lnz[j - 1] - 1 || Li[Lp[j - 1] + 1] != j) {
-      const double d = Lx[p];
-      V4d y = load<1>(row(j)).v[0];
-      y = y / d;
-      for (++p; p < pend; ++p) y = y - Lx[p] * load<1>(row(Li[p])).v[0];
-      store<1>(row(j), Row<1>{{y}});
-      j -= 1;
-    } else if (MaxChain == 2 || lnz != Lnz[j - 2] - 2 || Li[Lp[j - 2] + 2] != j) {
-      int q = Lp[j - 1];
-      const double d0 = Lx[p], d1 = Lx[q], t = Lx[q + 1];
-      V4d y0 = load<1>(row(j)).v[0] / d0;
-      V4d y1 = load<1>(row(j - 1)).v[0] / d1;
-      for (++p, q += 2; p < pend; ++p, ++q) {
-        const V4d x = load<1>(row(Li[p])).v[0];
-        y0 = y0 - Lx[p] * x;
-        y1 = y1 - Lx[q] * x;
-      }
-      y1 = y1 - t * y0;
-      store<1>(row(j), Row<1>{{y0}});
-      store<1>(row(j - 1), Row<1>{{y1}});
-      j -= 2;
-    } else {
-      int q = Lp[j - 1], r = Lp[j - 2];
-      const double d0 = Lx[p], d1 = Lx[q], d2 = Lx[r];
-      const double t0 = Lx[q + 1], t1 = Lx[r + 1], t2 = Lx[r + 2];
-      V4d y0 = load<1>(row(j)).v[0] / d0;
-      V4d y1 = load<1>(row(j - 1)).v[0] / d1;
-      V4d y2 = load<1>(row(j - 2)).v[0] / d2;
-      for (++p, q += 2, r += 3; p < pend; ++p, ++q, ++r) {
-        const V4d x = load<1>(row(Li[p])).v[0];
-        y0 = y0 - Lx[p] * x;
-        y1 = y1 - Lx[q] * x;
-        y2 = y2 - Lx[r] * x;
-      }
-      y1 = y1 - t0 * y0;
-      y2 = y2 - (t2 * y0 + t1 * y1);
-      store<1>(row(j), Row<1>{{y0}});
-      store<1>(row(j - 1), Row<1>{{y1}});
-      store<1>(row(j - 2), Row<1>{{y2}});
-      j -= 3;
-    }
+  for (int j = n - 1; j >= 0;) j = backward_group<MaxChain>(Lp, Li, Lnz, Lx, j, X, stride);
+}
+
+// Both halves of an eight-wide X, the first with chains of at most two columns and the second
+// with chains of MaxChainB, in one sweep: the group with the higher last column goes first, so
+// the two halves read the same columns of L while they are in cache.
+template <int MaxChainB>
+[[gnu::always_inline]] inline void backward_diagonal_pair(const int* Lp, const int* Li, const int* Lnz,
+                                                          const double* Lx, int n, double* X) {
+  int ja = n - 1, jb = n - 1;
+  while (ja >= 0 || jb >= 0) {
+    if (ja >= jb) ja = backward_group<2>(Lp, Li, Lnz, Lx, ja, X, 8);
+    else jb = backward_group<MaxChainB>(Lp, Li, Lnz, Lx, jb, X + 4, 8);
   }
 }
 
@@ -158,9 +175,8 @@ template <int MaxChain>
     return;
   }
   forward_unit<2>(Lp, Li, Lnz, Lx, n, X);
-  backward_diagonal<2>(Lp, Li, Lnz, Lx, n, X, 8);
-  if (ncols == 8) backward_diagonal<2>(Lp, Li, Lnz, Lx, n, X + 4, 8);
-  else backward_diagonal<3>(Lp, Li, Lnz, Lx, n, X + 4, 8);
+  if (ncols == 8) backward_diagonal_pair<2>(Lp, Li, Lnz, Lx, n, X);
+  else backward_diagonal_pair<3>(Lp, Li, Lnz, Lx, n, X);
 }
 __attribute__((target("avx2"))) void solve_avx2(const cholmod_factor& L, double* X, int ncols) {
   solve_body(L, X, ncols);
