@@ -202,13 +202,15 @@ bool solve_simplicial_ldlt(const void* factor, double* B, int ncols, int ld,
   const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
   const int n = static_cast<int>(L.n);
   const int W = ncols <= 4 ? 1 : 2, S = 4 * W;
-  workspace.rows.assign(static_cast<std::size_t>(n) * S, 0.0);
+  if (workspace.rows.size() < static_cast<std::size_t>(n) * S) workspace.rows.resize(static_cast<std::size_t>(n) * S);
   double* X = workspace.rows.data();
-  // (P b)_k = b_{Perm[k]} (natural order when the factor has no permutation)
+  // (P b)_k = b_{Perm[k]} (natural order when the factor has no permutation); unused lanes 0
   const int* perm = L.ordering != CHOLMOD_NATURAL ? static_cast<const int*>(L.Perm) : nullptr;
-  for (int c = 0; c < ncols; ++c) {
-    const double* col = B + static_cast<std::ptrdiff_t>(c) * ld;
-    for (int k = 0; k < n; ++k) X[static_cast<std::ptrdiff_t>(k) * S + c] = col[perm ? perm[k] : k];
+  for (int k = 0; k < n; ++k) {
+    double* row = X + static_cast<std::ptrdiff_t>(k) * S;
+    const std::ptrdiff_t from = perm ? perm[k] : k;
+    for (int c = 0; c < ncols; ++c) row[c] = B[static_cast<std::ptrdiff_t>(c) * ld + from];
+    for (int c = ncols; c < S; ++c) row[c] = 0.0;
   }
   if (workspace.kernel == SimplicialKernel::automatic)
     workspace.kernel = has_avx2() ? SimplicialKernel::avx2 : SimplicialKernel::generic;
