@@ -3,6 +3,7 @@
 
 #include <suitesparse/cholmod.h>
 
+#include <algorithm>
 #include <cstddef>
 
 namespace fascicle {
@@ -202,15 +203,22 @@ bool solve_simplicial_ldlt(const void* factor, double* B, int ncols, int ld,
   const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
   const int n = static_cast<int>(L.n);
   const int W = ncols <= 4 ? 1 : 2, S = 4 * W;
-  if (workspace.rows.size() < static_cast<std::size_t>(n) * S) workspace.rows.resize(static_cast<std::size_t>(n) * S);
+  // Unused lanes hold 0, which the solve keeps (0 - l 0, 0 / d): they are cleared only when the
+  // layout changes.
+  const std::size_t size = static_cast<std::size_t>(n) * S;
+  if (workspace.rows.size() < size || workspace.row_width != S || workspace.used_columns != ncols) {
+    if (workspace.rows.size() < size) workspace.rows.resize(size);
+    std::fill_n(workspace.rows.begin(), size, 0.0);
+    workspace.row_width = S;
+    workspace.used_columns = ncols;
+  }
   double* X = workspace.rows.data();
-  // (P b)_k = b_{Perm[k]} (natural order when the factor has no permutation); unused lanes 0
+  // (P b)_k = b_{Perm[k]} (natural order when the factor has no permutation)
   const int* perm = L.ordering != CHOLMOD_NATURAL ? static_cast<const int*>(L.Perm) : nullptr;
   for (int k = 0; k < n; ++k) {
     double* row = X + static_cast<std::ptrdiff_t>(k) * S;
     const std::ptrdiff_t from = perm ? perm[k] : k;
     for (int c = 0; c < ncols; ++c) row[c] = B[static_cast<std::ptrdiff_t>(c) * ld + from];
-    for (int c = ncols; c < S; ++c) row[c] = 0.0;
   }
   if (workspace.kernel == SimplicialKernel::automatic)
     workspace.kernel = has_avx2() ? SimplicialKernel::avx2 : SimplicialKernel::generic;

@@ -22,6 +22,7 @@ enum class SimplicialKernel { automatic, generic, avx2 };
 struct SimplicialSolveWorkspace {
   SimplicialKernel kernel = SimplicialKernel::automatic;
   std::vector<double> rows;  // P b, one row of up to eight columns per unknown
+  int row_width = 0, used_columns = 0;  // layout of `rows` at the last solve (its unused lanes are 0)
 };
 
 // True when `factor` (a `const cholmod_factor*`) is one solve_simplicial_ldlt can apply: numeric,
