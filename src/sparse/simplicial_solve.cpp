@@ -44,6 +44,7 @@ template <int W>
     const int lnz = Lnz[j], pend = p + lnz;
     if (lnz < 4 || lnz != Lnz[j + 1] + 1 || Li[p + 1] != j + 1) {
       const Row<W> y = load<W>(X + static_cast<std::ptrdiff_t>(j) * S);
+      #pragma GCC unroll 4
       for (++p; p < pend; ++p) {
         double* xi = X + static_cast<std::ptrdiff_t>(Li[p]) * S;
         Row<W> x = load<W>(xi);
@@ -57,6 +58,7 @@ template <int W>
       Row<W> y1 = load<W>(X + static_cast<std::ptrdiff_t>(j + 1) * S);
       for (int w = 0; w < W; ++w) y1.v[w] = y1.v[w] - Lx[p + 1] * y0.v[w];
       store<W>(X + static_cast<std::ptrdiff_t>(j + 1) * S, y1);
+      #pragma GCC unroll 4
       for (p += 2, ++q; p < pend; ++p, ++q) {
         double* xi = X + static_cast<std::ptrdiff_t>(Li[p]) * S;
         Row<W> x = load<W>(xi);
@@ -75,6 +77,7 @@ template <int W>
       }
       store<W>(X + static_cast<std::ptrdiff_t>(j + 1) * S, y1);
       store<W>(X + static_cast<std::ptrdiff_t>(j + 2) * S, y2);
+      #pragma GCC unroll 4
       for (p += 3, q += 2, ++r; p < pend; ++p, ++q, ++r) {
         double* xi = X + static_cast<std::ptrdiff_t>(Li[p]) * S;
         Row<W> x = load<W>(xi);
@@ -103,6 +106,7 @@ template <int MaxChain>
   const int lnz = Lnz[j], pend = p + lnz;
   if (j < 4 || lnz != Lnz[j - 1] - 1 || Li[Lp[j - 1] + 1] != j) {
     V4d y = load<1>(row(j)).v[0] / Lx[p];
+    #pragma GCC unroll 4
     for (++p; p < pend; ++p) y = y - Lx[p] * load<1>(row(Li[p])).v[0];
     store<1>(row(j), Row<1>{{y}});
     return j - 1;
@@ -112,6 +116,7 @@ template <int MaxChain>
     const double t = Lx[q + 1];
     V4d y0 = load<1>(row(j)).v[0] / Lx[p];
     V4d y1 = load<1>(row(j - 1)).v[0] / Lx[q];
+    #pragma GCC unroll 4
     for (++p, q += 2; p < pend; ++p, ++q) {
       const V4d x = load<1>(row(Li[p])).v[0];
       y0 = y0 - Lx[p] * x;
@@ -127,6 +132,7 @@ template <int MaxChain>
   V4d y0 = load<1>(row(j)).v[0] / Lx[p];
   V4d y1 = load<1>(row(j - 1)).v[0] / Lx[q];
   V4d y2 = load<1>(row(j - 2)).v[0] / Lx[r];
+  #pragma GCC unroll 4
   for (++p, q += 2, r += 3; p < pend; ++p, ++q, ++r) {
     const V4d x = load<1>(row(Li[p])).v[0];
     y0 = y0 - Lx[p] * x;
