@@ -7,6 +7,7 @@
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/parallel.hpp"
 #include "fascicle/deformation/mesh_operators.hpp"
+#include "fascicle/sparse/simplicial_solve.hpp"
 
 #include <Eigen/SVD>
 #include <cholmod.h>
@@ -147,9 +148,14 @@ class LdlFactor {
     return ok;
   }
 
-  // Solves K X = B in place (B: n x any columns). The solution and CHOLMOD's solve workspaces
-  // are kept between calls (cholmod_solve2), so a solve allocates nothing once warm.
+  // Solves K X = B in place (B: n x any columns). Up to eight columns go through
+  // fascicle/sparse's simplicial kernel in one pass over the factor (the same bits as CHOLMOD's
+  // solve, which takes four columns per pass); more through cholmod_solve2, whose solution and
+  // workspaces are kept between calls. Either way a solve allocates nothing once warm.
   void solve(Eigen::MatrixXd& B) {
+    if (solve_simplicial_ldlt(L_, B.data(), static_cast<int>(B.cols()), static_cast<int>(B.rows()),
+                              own_solve_))
+      return;
     cholmod_dense b{};
     b.nrow = static_cast<std::size_t>(B.rows());
     b.ncol = static_cast<std::size_t>(B.cols());
@@ -169,6 +175,7 @@ class LdlFactor {
   cholmod_common c_;
   cholmod_factor* L_ = nullptr;
   cholmod_dense *X_ = nullptr, *Y_ = nullptr, *E_ = nullptr;  // cholmod_solve2 workspaces
+  SimplicialSolveWorkspace own_solve_;
   std::vector<int> position_;  // per unknown: its row in the permuted factor
 };
 
@@ -179,6 +186,96 @@ struct LocalSpring {
   int pa = -1, pb = -1;  // model particle index
   double k = 0.0, rest_length = 0.0;
 };
+
+// The local step's spring vectors, d = L0 (x_a - x_b) / |x_a - x_b| (the rest vector x_a - x_b
+// at rest for a degenerate spring, |x_a - x_b| <= 1e-15), of `count` springs from positions
+// (sx, sy, sz), into d (x, y, z per spring). Four springs at a time: the square roots and
+// divisions, which bound the scalar loop, run on vector lanes; each lane is the same IEEE
+// operation as the scalar code, so d has the same bits ((dx dx + dy dy) + dz dz, then the root,
+// then L0 / len, then the products).
+namespace spring_vectors {
+using V4d = double __attribute__((vector_size(32), aligned(8)));
+using V4l = long long __attribute__((vector_size(32)));
+
+// Lane-wise square roots in place: one AVX instruction, or four scalar ones (same results).
+struct SqrtAvx {
+  __attribute__((target("avx2"))) static inline void apply(V4d& v) {
+    v = __builtin_ia32_sqrtpd256(v);
+  }
+};
+struct SqrtScalar {
+  [[gnu::always_inline]] static inline void apply(V4d& v) {
+    for (int l = 0; l < 4; ++l) v[l] = std::sqrt(v[l]);
+  }
+};
+
+template <class Sqrt>
+[[gnu::always_inline]] inline void calc_body(const LocalSpring* sp, int count, const double* sx,
+                                             const double* sy, const double* sz, const Points3& rest,
+                                             double* d) {
+  int s = 0;
+  for (; s + 4 <= count; s += 4) {
+    V4d dx, dy, dz, L0;
+    for (int l = 0; l < 4; ++l) {
+      const LocalSpring& q = sp[s + l];
+      dx[l] = sx[q.pa] - sx[q.pb];
+      dy[l] = sy[q.pa] - sy[q.pb];
+      dz[l] = sz[q.pa] - sz[q.pb];
+      L0[l] = q.rest_length;
+    }
+    V4d len = (dx * dx + dy * dy) + dz * dz;
+    Sqrt::apply(len);
+    const V4d scale = L0 / len;
+    const V4l ok = len > 1e-15;
+    dx = dx * scale;
+    dy = dy * scale;
+    dz = dz * scale;
+    for (int l = 0; l < 4; ++l) {
+      double* out = d + 3 * (s + l);
+      if (ok[l]) {
+        out[0] = dx[l];
+        out[1] = dy[l];
+        out[2] = dz[l];
+      } else {
+        const LocalSpring& q = sp[s + l];
+        for (int c = 0; c < 3; ++c) out[c] = rest(q.pa, c) - rest(q.pb, c);
+      }
+    }
+  }
+  for (; s < count; ++s) {
+    const LocalSpring& q = sp[s];
+    double dx = sx[q.pa] - sx[q.pb], dy = sy[q.pa] - sy[q.pb], dz = sz[q.pa] - sz[q.pb];
+    const double len = std::sqrt(dx * dx + dy * dy + dz * dz);
+    double* out = d + 3 * s;
+    if (len > 1e-15) {
+      const double scale = q.rest_length / len;
+      out[0] = dx * scale;
+      out[1] = dy * scale;
+      out[2] = dz * scale;
+    } else {
+      for (int c = 0; c < 3; ++c) out[c] = rest(q.pa, c) - rest(q.pb, c);
+    }
+  }
+}
+
+__attribute__((target("avx2"))) void calc_avx2(const LocalSpring* sp, int count, const double* sx,
+                                               const double* sy, const double* sz,
+                                               const Points3& rest, double* d) {
+  calc_body<SqrtAvx>(sp, count, sx, sy, sz, rest, d);
+}
+void calc_generic(const LocalSpring* sp, int count, const double* sx, const double* sy,
+                  const double* sz, const Points3& rest, double* d) {
+  calc_body<SqrtScalar>(sp, count, sx, sy, sz, rest, d);
+}
+void calc(const LocalSpring* sp, int count, const double* sx, const double* sy, const double* sz,
+          const Points3& rest, double* d) {
+  static const bool avx2 = [] {
+    __builtin_cpu_init();
+    return __builtin_cpu_supports("avx2") != 0;
+  }();
+  (avx2 ? calc_avx2 : calc_generic)(sp, count, sx, sy, sz, rest, d);
+}
+}  // namespace spring_vectors
 
 // Anderson acceleration of a fixed-point map x -> G(x) (Walker and Ni 2011; used for projective
 // dynamics by Peng et al. 2018): the next iterate is G(x_k) - dG gamma, with gamma minimising
@@ -1180,30 +1277,28 @@ double relax_muscle(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
   const double* sx = snapshot.col(0).data();
   const double* sy = snapshot.col(1).data();
   const double* sz = snapshot.col(2).data();
-  // local step: every spring's rest-length vector along its current direction
-  for (const LocalSpring& sp : sys.springs) {
-    double dx = sx[sp.pa] - sx[sp.pb], dy = sy[sp.pa] - sy[sp.pb], dz = sz[sp.pa] - sz[sp.pb];
-    const double len = std::sqrt(dx * dx + dy * dy + dz * dz);
-    if (len > 1e-15) {
-      const double scale = sp.rest_length / len;
-      dx *= scale;
-      dy *= scale;
-      dz *= scale;
-    } else {
-      dx = model.rest(sp.pa, 0) - model.rest(sp.pb, 0);
-      dy = model.rest(sp.pa, 1) - model.rest(sp.pb, 1);
-      dz = model.rest(sp.pa, 2) - model.rest(sp.pb, 2);
-    }
-    const double k = sp.k;
-    if (sp.a >= 0) {
-      bx[sp.a] += k * (sp.b >= 0 ? dx : dx + sx[sp.pb]);
-      by[sp.a] += k * (sp.b >= 0 ? dy : dy + sy[sp.pb]);
-      bz[sp.a] += k * (sp.b >= 0 ? dz : dz + sz[sp.pb]);
-    }
-    if (sp.b >= 0) {
-      bx[sp.b] += k * (sp.a >= 0 ? -dx : sx[sp.pa] - dx);
-      by[sp.b] += k * (sp.a >= 0 ? -dy : sy[sp.pa] - dy);
-      bz[sp.b] += k * (sp.a >= 0 ? -dz : sz[sp.pa] - dz);
+  // local step: every spring's rest-length vector along its current direction (in blocks of 256
+  // springs, so the vectors stay in cache between the two loops)
+  constexpr int block = 256;
+  double d[3 * block];
+  const int num_springs = static_cast<int>(sys.springs.size());
+  for (int s0 = 0; s0 < num_springs; s0 += block) {
+    const int count = std::min(block, num_springs - s0);
+    spring_vectors::calc(sys.springs.data() + s0, count, sx, sy, sz, model.rest, d);
+    for (int s = 0; s < count; ++s) {
+      const LocalSpring& sp = sys.springs[s0 + s];
+      const double dx = d[3 * s], dy = d[3 * s + 1], dz = d[3 * s + 2];
+      const double k = sp.k;
+      if (sp.a >= 0) {
+        bx[sp.a] += k * (sp.b >= 0 ? dx : dx + sx[sp.pb]);
+        by[sp.a] += k * (sp.b >= 0 ? dy : dy + sy[sp.pb]);
+        bz[sp.a] += k * (sp.b >= 0 ? dz : dz + sz[sp.pb]);
+      }
+      if (sp.b >= 0) {
+        bx[sp.b] += k * (sp.a >= 0 ? -dx : sx[sp.pa] - dx);
+        by[sp.b] += k * (sp.a >= 0 ? -dy : sy[sp.pa] - dy);
+        bz[sp.b] += k * (sp.a >= 0 ? -dz : sz[sp.pa] - dz);
+      }
     }
   }
   const double mass_term = m.particle_mass_kg * ctx.mass_scale;

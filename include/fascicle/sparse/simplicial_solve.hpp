@@ -1,0 +1,39 @@
+#pragma once
+// Triangular solves with a CHOLMOD simplicial LDLᵀ factor (the kind cholmod_updown modifies),
+// applied by our own kernel: all right-hand sides (up to eight) in one pass over the factor, where
+// CHOLMOD's own simplicial solve takes them four at a time (six columns: two passes), with the
+// columns of one row side by side so a vector unit updates them together.
+//
+// Same bits as cholmod_solve2(CHOLMOD_A, ...): every column goes through the same arithmetic in
+// the same order as in CHOLMOD's simplicial kernels (forward solve with the unit-diagonal L, then
+// D⁻¹ and Lᵀ, both with CHOLMOD's chains of up to three consecutive columns that share their
+// pattern), whatever the number of columns; no fused multiply-add. This header does not include
+// cholmod.h: the factor is passed as an opaque pointer.
+#include <vector>
+
+namespace fascicle {
+
+// Which clone of the kernel runs. Both do the same operations in the same order without FMA, so
+// they give identical bits; `automatic` picks AVX2 when the CPU has it.
+enum class SimplicialKernel { automatic, generic, avx2 };
+
+// Scratch space of solve_simplicial_ldlt, reused across calls (no allocation once warm). One per
+// thread of use.
+struct SimplicialSolveWorkspace {
+  SimplicialKernel kernel = SimplicialKernel::automatic;
+  std::vector<double> rows;  // P b, one row of up to eight columns per unknown
+  int row_width = 0, used_columns = 0;  // layout of `rows` at the last solve (its unused lanes are 0)
+};
+
+// True when `factor` (a `const cholmod_factor*`) is one solve_simplicial_ldlt can apply: numeric,
+// simplicial LDLᵀ (not LLᵀ), real double values, int indices.
+bool is_simplicial_ldlt(const void* factor);
+
+// Solves A x = b in place for ncols ≤ 8 right-hand sides stored column-major in B (leading
+// dimension ld ≥ n), where CHOLMOD factorised P A Pᵀ = L D Lᵀ: x = Pᵀ L⁻ᵀ D⁻¹ L⁻¹ P b. Returns
+// false (B untouched) when !is_simplicial_ldlt(factor) or ncols is not in 1..8; the caller then
+// uses CHOLMOD's own solve.
+bool solve_simplicial_ldlt(const void* factor, double* B, int ncols, int ld,
+                           SimplicialSolveWorkspace& workspace);
+
+}  // namespace fascicle

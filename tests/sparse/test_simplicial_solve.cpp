@@ -1,0 +1,254 @@
+// The one-pass simplicial LDLᵀ solve against CHOLMOD's own solve (cholmod_solve2), on factors
+// that CHOLMOD ordered, factorised and modified by rank-one updates and downdates.
+#include "fascicle/sparse/simplicial_solve.hpp"
+
+#include <gtest/gtest.h>
+#include <suitesparse/cholmod.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <random>
+#include <vector>
+
+namespace fascicle {
+namespace {
+
+// A spring lattice like the fibres-first systems: `fibres` chains of `length` particles, each
+// particle joined to the next along its chain and to the same index on two other chains, with
+// random stiffnesses and a small diagonal term (the fixed ends), rows shuffled. Lower triangle.
+struct Lattice {
+  int n = 0;
+  std::vector<int> p, i;
+  std::vector<double> x;
+};
+
+Lattice make_lattice(int fibres, int length, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> k(100.0, 400.0);
+  const int n = fibres * length;
+  std::vector<int> shuffle(n);
+  for (int a = 0; a < n; ++a) shuffle[a] = a;
+  std::shuffle(shuffle.begin(), shuffle.end(), rng);
+  std::vector<std::vector<std::pair<int, double>>> cols(n);
+  std::vector<double> diag(n, 1.0);
+  auto spring = [&](int a, int b) {
+    a = shuffle[a];
+    b = shuffle[b];
+    const double w = k(rng);
+    cols[std::min(a, b)].push_back({std::max(a, b), -w});
+    diag[a] += w;
+    diag[b] += w;
+  };
+  std::uniform_int_distribution<int> other(0, fibres - 1);
+  for (int f = 0; f < fibres; ++f)
+    for (int s = 0; s < length; ++s) {
+      if (s + 1 < length) spring(f * length + s, f * length + s + 1);
+      for (int e = 0; e < 2; ++e) {
+        const int g = other(rng);
+        if (g != f) spring(f * length + s, g * length + s);
+      }
+    }
+  Lattice A;
+  A.n = n;
+  A.p.push_back(0);
+  for (int c = 0; c < n; ++c) {
+    std::vector<std::pair<int, double>> entries = cols[c];
+    entries.push_back({c, diag[c]});
+    std::sort(entries.begin(), entries.end());
+    std::vector<std::pair<int, double>> merged;
+    for (const auto& e : entries) {
+      if (!merged.empty() && merged.back().first == e.first) merged.back().second += e.second;
+      else merged.push_back(e);
+    }
+    for (const auto& e : merged) {
+      A.i.push_back(e.first);
+      A.x.push_back(e.second);
+    }
+    A.p.push_back(static_cast<int>(A.i.size()));
+  }
+  return A;
+}
+
+class SimplicialSolve : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    cholmod_start(&c_);
+    c_.print = 0;
+    c_.supernodal = CHOLMOD_SIMPLICIAL;
+    c_.final_ll = 0;
+    A_ = make_lattice(40, 15, 7u);
+    view_.nrow = view_.ncol = static_cast<std::size_t>(A_.n);
+    view_.nzmax = A_.x.size();
+    view_.p = A_.p.data();
+    view_.i = A_.i.data();
+    view_.x = A_.x.data();
+    view_.stype = -1;
+    view_.itype = CHOLMOD_INT;
+    view_.xtype = CHOLMOD_REAL;
+    view_.dtype = CHOLMOD_DOUBLE;
+    view_.sorted = 1;
+    view_.packed = 1;
+    L_ = cholmod_analyze(&view_, &c_);
+    ASSERT_NE(L_, nullptr);
+    ASSERT_TRUE(cholmod_factorize(&view_, L_, &c_));
+  }
+  void TearDown() override {
+    if (L_) cholmod_free_factor(&L_, &c_);
+    cholmod_finish(&c_);
+  }
+  // Adds (update) or removes (downdate) weights w on the diagonal rows `rows` (original order)
+  // by cholmod_updown, as the fibres-first solver does for contacts; A_ follows.
+  void modify(bool update, const std::vector<int>& rows, double w) {
+    const int* perm = static_cast<const int*>(L_->Perm);
+    std::vector<int> position(A_.n);
+    for (int k = 0; k < A_.n; ++k) position[perm[k]] = k;
+    const std::size_t m = rows.size();
+    cholmod_sparse* C = cholmod_allocate_sparse(L_->n, m, m, 1, 1, 0, CHOLMOD_REAL, &c_);
+    for (std::size_t j = 0; j < m; ++j) {
+      static_cast<int*>(C->p)[j] = static_cast<int>(j);
+      static_cast<int*>(C->i)[j] = position[rows[j]];
+      static_cast<double*>(C->x)[j] = std::sqrt(w);
+      for (int q = A_.p[rows[j]]; q < A_.p[rows[j] + 1]; ++q)
+        if (A_.i[q] == rows[j]) A_.x[q] += update ? w : -w;
+    }
+    static_cast<int*>(C->p)[m] = static_cast<int>(m);
+    ASSERT_TRUE(cholmod_updown(update ? 1 : 0, C, L_, &c_));
+    cholmod_free_sparse(&C, &c_);
+  }
+  std::vector<double> make_rhs(int ncols, unsigned seed) const {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    std::vector<double> B(static_cast<std::size_t>(A_.n) * ncols);
+    for (double& b : B) b = u(rng);
+    return B;
+  }
+  std::vector<double> cholmod_solution(const std::vector<double>& B, int ncols) {
+    cholmod_dense b{};
+    b.nrow = static_cast<std::size_t>(A_.n);
+    b.ncol = static_cast<std::size_t>(ncols);
+    b.nzmax = b.nrow * b.ncol;
+    b.d = b.nrow;
+    b.x = const_cast<double*>(B.data());
+    b.xtype = CHOLMOD_REAL;
+    b.dtype = CHOLMOD_DOUBLE;
+    cholmod_dense* X = cholmod_solve(CHOLMOD_A, L_, &b, &c_);
+    std::vector<double> x(static_cast<const double*>(X->x), static_cast<const double*>(X->x) + B.size());
+    cholmod_free_dense(&X, &c_);
+    return x;
+  }
+  // max |A x - b| / max |b| over all columns (A from its lower triangle)
+  double relative_residual(const std::vector<double>& X, const std::vector<double>& B, int ncols) const {
+    double worst = 0.0, scale = 0.0;
+    for (int c = 0; c < ncols; ++c) {
+      const double* x = X.data() + static_cast<std::size_t>(c) * A_.n;
+      const double* b = B.data() + static_cast<std::size_t>(c) * A_.n;
+      std::vector<double> r(b, b + A_.n);
+      for (int col = 0; col < A_.n; ++col)
+        for (int q = A_.p[col]; q < A_.p[col + 1]; ++q) {
+          const int row = A_.i[q];
+          r[row] -= A_.x[q] * x[col];
+          if (row != col) r[col] -= A_.x[q] * x[row];
+        }
+      for (int k = 0; k < A_.n; ++k) {
+        worst = std::max(worst, std::abs(r[k]));
+        scale = std::max(scale, std::abs(b[k]));
+      }
+    }
+    return worst / scale;
+  }
+  cholmod_common c_;
+  Lattice A_;
+  cholmod_sparse view_{};
+  cholmod_factor* L_ = nullptr;
+};
+
+TEST_F(SimplicialSolve, FactorIsAPermutedSimplicialLdlt) {
+  EXPECT_TRUE(is_simplicial_ldlt(L_));
+  const int* perm = static_cast<const int*>(L_->Perm);
+  int moved = 0;
+  for (int k = 0; k < A_.n; ++k) moved += perm[k] != k;
+  EXPECT_GT(moved, A_.n / 2);
+}
+
+// Same bits as cholmod_solve for 1 to 8 columns (CHOLMOD: four per pass, with chains of columns
+// whose length depends on the count), before and after rank-one updates and downdates, and a
+// solution of A x = b.
+TEST_F(SimplicialSolve, EqualsCholmodSolveBitForBitForOneToEightColumns) {
+  for (int stage = 0; stage < 3; ++stage) {
+    if (stage == 1) modify(true, {3, 50, 51, 52, 300, 599}, 4e4);
+    if (stage == 2) modify(false, {50, 52}, 4e4);
+    SimplicialSolveWorkspace ws;
+    for (int ncols = 1; ncols <= 8; ++ncols) {
+      const std::vector<double> B = make_rhs(ncols, 11u + ncols);
+      std::vector<double> X = B;
+      ASSERT_TRUE(solve_simplicial_ldlt(L_, X.data(), ncols, A_.n, ws));
+      const std::vector<double> expected = cholmod_solution(B, ncols);
+      EXPECT_EQ(std::memcmp(X.data(), expected.data(), X.size() * sizeof(double)), 0)
+          << "stage " << stage << ", " << ncols << " columns";
+      EXPECT_LT(relative_residual(X, B, ncols), 1e-12) << "stage " << stage << ", " << ncols << " columns";
+    }
+  }
+}
+
+TEST_F(SimplicialSolve, LeadingDimensionLeavesTheGapUntouched) {
+  const int ld = A_.n + 5, ncols = 3;
+  const std::vector<double> packed = make_rhs(ncols, 5u);
+  std::vector<double> padded(static_cast<std::size_t>(ld) * ncols, -7.0);
+  for (int c = 0; c < ncols; ++c)
+    std::copy_n(packed.data() + static_cast<std::size_t>(c) * A_.n, A_.n, padded.data() + static_cast<std::size_t>(c) * ld);
+  SimplicialSolveWorkspace ws;
+  ASSERT_TRUE(solve_simplicial_ldlt(L_, padded.data(), ncols, ld, ws));
+  const std::vector<double> expected = cholmod_solution(packed, ncols);
+  for (int c = 0; c < ncols; ++c) {
+    EXPECT_EQ(std::memcmp(padded.data() + static_cast<std::size_t>(c) * ld,
+                          expected.data() + static_cast<std::size_t>(c) * A_.n, A_.n * sizeof(double)), 0);
+    for (int k = A_.n; k < ld; ++k) EXPECT_EQ(padded[static_cast<std::size_t>(c) * ld + k], -7.0);
+  }
+}
+
+// One workspace for solves of alternating widths (as the fibres-first solver's three- and
+// six-column solves): every solve equals a fresh workspace's.
+TEST_F(SimplicialSolve, ReusedWorkspaceGivesTheSameBitsAsAFreshOne) {
+  SimplicialSolveWorkspace reused;
+  for (int ncols : {3, 6, 3, 3, 6, 6, 1, 3}) {
+    std::vector<double> a = make_rhs(ncols, 20u + ncols), b = a;
+    SimplicialSolveWorkspace fresh;
+    ASSERT_TRUE(solve_simplicial_ldlt(L_, a.data(), ncols, A_.n, reused));
+    ASSERT_TRUE(solve_simplicial_ldlt(L_, b.data(), ncols, A_.n, fresh));
+    EXPECT_EQ(std::memcmp(a.data(), b.data(), a.size() * sizeof(double)), 0) << ncols;
+  }
+}
+
+TEST_F(SimplicialSolve, GenericAndAvx2KernelsGiveIdenticalBits) {
+  __builtin_cpu_init();
+  if (!__builtin_cpu_supports("avx2")) GTEST_SKIP() << "no AVX2 on this CPU";
+  for (int ncols : {3, 6}) {
+    std::vector<double> generic = make_rhs(ncols, 3u), avx2 = generic;
+    SimplicialSolveWorkspace g, a;
+    g.kernel = SimplicialKernel::generic;
+    a.kernel = SimplicialKernel::avx2;
+    ASSERT_TRUE(solve_simplicial_ldlt(L_, generic.data(), ncols, A_.n, g));
+    ASSERT_TRUE(solve_simplicial_ldlt(L_, avx2.data(), ncols, A_.n, a));
+    EXPECT_EQ(std::memcmp(generic.data(), avx2.data(), generic.size() * sizeof(double)), 0) << ncols;
+  }
+}
+
+TEST_F(SimplicialSolve, RefusesWhatItCannotApply) {
+  SimplicialSolveWorkspace ws;
+  std::vector<double> B = make_rhs(9, 1u);
+  const std::vector<double> before = B;
+  EXPECT_FALSE(solve_simplicial_ldlt(L_, B.data(), 9, A_.n, ws));  // more than eight columns
+  EXPECT_FALSE(solve_simplicial_ldlt(L_, B.data(), 0, A_.n, ws));
+  EXPECT_FALSE(solve_simplicial_ldlt(nullptr, B.data(), 3, A_.n, ws));
+  // an LLᵀ factor
+  cholmod_factor* LL = cholmod_copy_factor(L_, &c_);
+  ASSERT_TRUE(cholmod_change_factor(CHOLMOD_REAL, 1, 0, 1, 1, LL, &c_));
+  EXPECT_FALSE(is_simplicial_ldlt(LL));
+  EXPECT_FALSE(solve_simplicial_ldlt(LL, B.data(), 3, A_.n, ws));
+  cholmod_free_factor(&LL, &c_);
+  EXPECT_EQ(B, before);
+}
+
+}  // namespace
+}  // namespace fascicle
