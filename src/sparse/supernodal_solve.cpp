@@ -20,6 +20,9 @@ namespace {
 constexpr int kMaxBlock = 8;
 // Columns per block of the backward kernel (fixes the order of its sums: supernodal_kernels.inc).
 constexpr int kBackwardBlock = 4;
+// Columns per block of the forward kernel (any width gives the same bits).
+// Eight (tried) is slower: the broadcast values no longer fit in the registers.
+constexpr int kForwardBlock = 4;
 
 // A supernode holds columns k1 .. k1 + nscol of L as a dense nsrow x nscol column-major block
 // whose row indices are rows[0 .. nsrow), the first nscol of them k1 .. k1 + nscol. t[0 .. nr):
