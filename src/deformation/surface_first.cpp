@@ -367,8 +367,9 @@ struct SparseCholesky {
   bool kind_is_ldlt() const { return kind == SparseSolverKind::eigen_simplicial_ldlt; }
   // Up to eight columns (the three coordinates, most Woodbury column batches), the CHOLMOD factor
   // is applied by fascicle/sparse's supernodal kernels in one pass over it (VH soleus factor,
-  // 3 columns: 2.7 ms against CHOLMOD's 3.7 ms); wider batches go to CHOLMOD, whose BLAS blocks
-  // win there (12 columns: 9.0 ms against 11.3 ms; bench_sparse).
+  // 3 columns: 1.5 ms against CHOLMOD's 2.6 ms; bench_sparse, session 11); wider batches go to
+  // CHOLMOD (chosen when its BLAS blocks won at 12 columns; since the AVX-512 kernels of session
+  // 11 ours take 4.5 ms there against 6.1 ms, but no surface-first path solves more than eight).
   Eigen::MatrixXd solve(const Eigen::MatrixXd& rhs) const {
     use_single_threaded_cholmod();
     if (kind == SparseSolverKind::cholmod_supernodal) {

@@ -192,18 +192,24 @@ TEST_F(SupernodalSolve, ColumnsAreIndependentOfTheirCountAndLeadingDimension) {
   }
 }
 
-TEST_F(SupernodalSolve, GenericAndAvx2KernelsGiveIdenticalBits) {
-  __builtin_cpu_init();
-  if (!__builtin_cpu_supports("avx2")) GTEST_SKIP() << "no AVX2 on this CPU";
-  for (int ncols = 1; ncols <= 9; ++ncols) {
-    const std::vector<double> B = random_rhs(ncols, A_.n, 500u + ncols);
-    std::vector<double> Xg = B, Xa = B;
-    SupernodalSolveWorkspace wg, wa;
-    wg.kernel = SupernodalKernel::generic;
-    wa.kernel = SupernodalKernel::avx2;
-    ASSERT_TRUE(solve_supernodal_llt(L_, Xg.data(), ncols, A_.n, wg));
-    ASSERT_TRUE(solve_supernodal_llt(L_, Xa.data(), ncols, A_.n, wa));
-    EXPECT_EQ(0, std::memcmp(Xg.data(), Xa.data(), Xg.size() * sizeof(double))) << ncols;
+TEST_F(SupernodalSolve, EveryKernelCloneGivesIdenticalBits) {
+  // The AVX-512 and AVX2 clones (those this CPU runs) against the generic one, whole solves and
+  // forward halves, for every block width and a second pass.
+  for (SupernodalKernel kernel : {SupernodalKernel::avx2, SupernodalKernel::avx512}) {
+    if (!has_supernodal_kernel(kernel)) continue;
+    for (int ncols = 1; ncols <= 9; ++ncols) {
+      const std::vector<double> B = random_rhs(ncols, A_.n, 500u + ncols);
+      std::vector<double> Xg = B, Xv = B, Yg(B.size()), Yv(B.size());
+      SupernodalSolveWorkspace wg, wv;
+      wg.kernel = SupernodalKernel::generic;
+      wv.kernel = kernel;
+      ASSERT_TRUE(solve_supernodal_llt(L_, Xg.data(), ncols, A_.n, wg));
+      ASSERT_TRUE(solve_supernodal_llt(L_, Xv.data(), ncols, A_.n, wv));
+      EXPECT_EQ(0, std::memcmp(Xg.data(), Xv.data(), Xg.size() * sizeof(double))) << ncols;
+      ASSERT_TRUE(solve_supernodal_forward(L_, B.data(), ncols, A_.n, Yg.data(), wg));
+      ASSERT_TRUE(solve_supernodal_forward(L_, B.data(), ncols, A_.n, Yv.data(), wv));
+      EXPECT_EQ(0, std::memcmp(Yg.data(), Yv.data(), Yg.size() * sizeof(double))) << ncols;
+    }
   }
 }
 

@@ -8,9 +8,13 @@
 
 namespace fascicle {
 
-// Which clone of the kernels runs. Both do the same operations in the same order without FMA, so
-// they give identical bits; `automatic` picks AVX2 when the CPU has it.
-enum class SupernodalKernel { automatic, generic, avx2 };
+// Which clone of the kernels runs. All do the same operations in the same order (eight-lane
+// partial sums, fused multiply-adds; exact library fma() in the generic clone), so they give
+// identical bits on every machine; `automatic` picks the fastest this CPU runs (AVX-512, then
+// AVX2 with FMA, then generic). Choosing a clone the CPU lacks is undefined behaviour: check
+// has_supernodal_kernel first.
+enum class SupernodalKernel { automatic, generic, avx2, avx512 };
+bool has_supernodal_kernel(SupernodalKernel kernel);
 
 // Scratch space of solve_supernodal_llt, reused across calls (it only grows: no allocation once
 // it has met the largest factor and column count). One per thread of use.
