@@ -239,7 +239,10 @@ SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_act
 
   // normal-equation matrix Lf^T Lf + w_line I (the identity also puts every diagonal entry in the
   // pattern, so contact weights never change the sparsity pattern)
-  SparseMatrix LtL = (b.Lf_transpose * b.Lf_transpose.transpose()).pruned();
+  // (Eigen's conservative product, then its exact zeros dropped: the entries and values of
+  // .pruned() on the product, without the slower pruning product)
+  SparseMatrix LtL = b.Lf_transpose * SparseMatrix(b.Lf_transpose.transpose());
+  LtL.prune(0.0, 0.0);
   b.diagonal_scale = LtL.diagonal().mean();
   SparseMatrix I(nf, nf);
   I.setIdentity();
