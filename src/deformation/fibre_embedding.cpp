@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <mutex>
 #include <numeric>
 
 namespace fascicle {
@@ -613,7 +614,14 @@ FibreEmbedding embed_fibres(const SurfaceBinding& binding, const std::vector<Poi
     e.fibre_start.push_back(static_cast<int>(points.size()));
   }
   std::vector<std::vector<std::pair<int, double>>> rows(points.size());
-  const EdgeTable table = make_edge_table(rest_surface.F);
+  // The whole surface's edge table is needed only for points summed over every triangle (all of
+  // them without the far-field sums, else the rare point with too few candidates).
+  std::once_flag table_once;
+  EdgeTable table;
+  const auto get_table = [&]() -> const EdgeTable& {
+    std::call_once(table_once, [&] { table = make_edge_table(rest_surface.F); });
+    return table;
+  };
   // The far-field sums pay off only with truncation and enough clusters.
   const int k = options.max_weights;
   const bool clustered = options.far_field_ratio > 0.0 && k > 0 && options.cluster_size > 0 &&
@@ -634,7 +642,7 @@ FibreEmbedding embed_fibres(const SurfaceBinding& binding, const std::vector<Poi
         rows[p] = correct_affine(rest_surface, points[p], kept);
         continue;
       }
-      const VecX w = calc_mean_value_coordinates(rest_surface, table, points[p], scratch);
+      const VecX w = calc_mean_value_coordinates(rest_surface, get_table(), points[p], scratch);
       rows[p] = truncate_affine(rest_surface, points[p], w, options.max_weights);
     }
   });

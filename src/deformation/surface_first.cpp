@@ -239,7 +239,10 @@ SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_act
 
   // normal-equation matrix Lf^T Lf + w_line I (the identity also puts every diagonal entry in the
   // pattern, so contact weights never change the sparsity pattern)
-  SparseMatrix LtL = (b.Lf_transpose * b.Lf_transpose.transpose()).pruned();
+  // (Eigen's conservative product, then its exact zeros dropped: the entries and values of
+  // .pruned() on the product, without the slower pruning product)
+  SparseMatrix LtL = b.Lf_transpose * SparseMatrix(b.Lf_transpose.transpose());
+  LtL.prune(0.0, 0.0);
   b.diagonal_scale = LtL.diagonal().mean();
   SparseMatrix I(nf, nf);
   I.setIdentity();
@@ -253,9 +256,18 @@ SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_act
     if (!bone) throw_usage("null bone query", muscle_context(b.name));
     VecX depth = VecX::Zero(n);
     VecX clearance = bone->calc_distances(rest_surface.V);
-    const InsideFlags inside = bone->calc_is_inside(rest_surface.V);
-    for (Eigen::Index i = 0; i < n; ++i) {
-      if (!inside[i]) continue;
+    // only vertices inside the bone's (padded) bounding box can be inside the bone (the rule of
+    // SurfaceFirstSolver::update_contacts); the ray votes run on those alone
+    const Eigen::AlignedBox3d box = calc_padded_box(bone->get_mesh().V);
+    std::vector<Eigen::Index> in_box;
+    for (Eigen::Index i = 0; i < n; ++i)
+      if (box.contains(rest_surface.V.row(i).transpose())) in_box.push_back(i);
+    Points3 P(static_cast<Eigen::Index>(in_box.size()), 3);
+    for (std::size_t k = 0; k < in_box.size(); ++k) P.row(static_cast<Eigen::Index>(k)) = rest_surface.V.row(in_box[k]);
+    const InsideFlags inside = bone->calc_is_inside(P);
+    for (std::size_t k = 0; k < in_box.size(); ++k) {
+      if (!inside[static_cast<Eigen::Index>(k)]) continue;
+      const Eigen::Index i = in_box[k];
       depth[i] = clearance[i];
       clearance[i] = 0.0;
     }

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <vector>
 
 namespace fascicle {
@@ -62,8 +63,57 @@ double cross2(const Vec2& o, const Vec2& a, const Vec2& b) {
   return (a.x() - o.x()) * (b.y() - o.y()) - (a.y() - o.y()) * (b.x() - o.x());
 }
 
+// Drops the points that lie strictly inside (by a margin) the convex polygon of the extreme
+// points in eight directions (Akl and Toussaint 1978): they cannot be hull vertices, and the
+// monotone chain below would push and pop them again. The hull is unchanged; the sort that
+// dominates its cost runs on the few points left (on a muscle's projected vertices, ~5 %).
+void drop_interior_points(std::vector<Vec2>& p) {
+  if (p.size() < 64) return;
+  // extreme points for the directions at 0, 45, ..., 315 degrees (counter-clockwise order)
+  const std::array<Vec2, 8> dirs{Vec2(1, 0), Vec2(1, 1), Vec2(0, 1), Vec2(-1, 1),
+                                 Vec2(-1, 0), Vec2(-1, -1), Vec2(0, -1), Vec2(1, -1)};
+  std::array<std::size_t, 8> best{};
+  std::array<double, 8> value;
+  value.fill(-std::numeric_limits<double>::infinity());
+  double scale = 0.0;
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    scale = std::max(scale, p[i].cwiseAbs().maxCoeff());
+    for (std::size_t k = 0; k < 8; ++k) {
+      const double v = dirs[k].dot(p[i]);
+      if (v > value[k]) {
+        value[k] = v;
+        best[k] = i;
+      }
+    }
+  }
+  std::vector<Vec2> poly;
+  for (std::size_t k = 0; k < 8; ++k)
+    if (poly.empty() || p[best[k]] != poly.back()) poly.push_back(p[best[k]]);
+  while (poly.size() > 1 && poly.front() == poly.back()) poly.pop_back();
+  if (poly.size() < 3) return;
+  // strictly inside: at least `margin` (a relative 1e-9 of the coordinates) from every edge
+  const double margin = 1e-9 * scale;
+  std::vector<Vec2> edge(poly.size());
+  std::vector<double> length(poly.size());
+  for (std::size_t k = 0; k < poly.size(); ++k) {
+    edge[k] = poly[(k + 1) % poly.size()] - poly[k];
+    length[k] = edge[k].norm();
+  }
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    bool inside = true;
+    for (std::size_t k = 0; k < poly.size() && inside; ++k) {
+      const Vec2 q = p[i] - poly[k];
+      inside = edge[k].x() * q.y() - edge[k].y() * q.x() > margin * length[k];
+    }
+    if (!inside) p[kept++] = p[i];
+  }
+  p.resize(kept);
+}
+
 // Convex hull, counter-clockwise, without collinear points (Andrew's monotone chain, 1979).
 std::vector<Vec2> convex_hull(std::vector<Vec2> p) {
+  drop_interior_points(p);
   std::sort(p.begin(), p.end(), [](const Vec2& a, const Vec2& b) {
     return a.x() != b.x() ? a.x() < b.x() : a.y() < b.y();
   });
