@@ -143,8 +143,10 @@ class FibresFirst final : public MuscleGroupRepresentation {
       input.time_step_s = state.time_s - frame->last_time_s;
     frame->solver.calc_frame(input);
     const FibresFirstInfo& info = frame->solver.get_info();
-    spdlog::debug("fibres_first t = {:.3f} s: {} iterations, {} solves, {} contact rounds, {} final passes",
-                  state.time_s, info.iterations, info.solves, info.contact_rounds, info.final_passes);
+    spdlog::debug("fibres_first t = {:.3f} s: {} iterations, {} solves, {} contact rounds, {} final passes{}",
+                  state.time_s, info.iterations, info.solves, info.contact_rounds, info.final_passes,
+                  info.final_state_restored ? fmt::format(" (ended in the state of stage {})", info.final_state_restored)
+                                            : std::string());
     frame->last_time_s = state.time_s;
     const auto& results = frame->solver.get_muscles();
     for (size_t k = 0; k < muscles.size(); ++k) {

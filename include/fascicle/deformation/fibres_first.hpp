@@ -291,6 +291,17 @@ struct FibresFirstInfo {
   // separate_surfaces: passes of the final projection's volume / surface / bone loop beyond the
   // first (taken while some muscle's volume is off by more than volume_tolerance)
   int final_passes = 0;
+  // separate_surfaces: 0 when the final projection ended in its last state; otherwise that state
+  // was off by more than volume_tolerance and the frame went back to the state with the smallest
+  // worst volume error: 1 the state before the surface pushes, 2 the state before the passes,
+  // 2 + k the state after pass k
+  int final_state_restored = 0;
+  // separate_surfaces with the volume held: the worst relative volume error over the muscles
+  // after the final projection's first bone projection (before any surface push) and at its end
+  // (before the last bone check; NaN when not computed). The second is never larger than the
+  // larger of the first and volume_tolerance.
+  double final_volume_error_start = std::numeric_limits<double>::quiet_NaN();
+  double final_volume_error = std::numeric_limits<double>::quiet_NaN();
   // Stopping measure of the last local/global iteration: the largest particle displacement of
   // that iteration divided by the muscle's mean rest spring length (max over muscles; a muscle
   // resting in that iteration — converged, stalled, or not woken this round — counts with the step
