@@ -560,7 +560,8 @@ struct FrameContext {
 int detect_bone_contacts(const FrameContext& c, const Points3& x, BoneContacts& contacts,
                          std::vector<Points3>& checked_at, std::vector<VecX>& clearance,
                          bool add, std::vector<double>* max_depth_per_muscle,
-                         std::vector<char>* added_muscle = nullptr) {
+                         std::vector<char>* added_muscle = nullptr,
+                         std::vector<char>* inside_muscle = nullptr) {
   const FibresFirstModel& model = c.model;
   const double margin = model.options.bone_margin_m;
   int added = 0;
@@ -590,6 +591,8 @@ int detect_bone_contacts(const FrameContext& c, const Points3& x, BoneContacts& 
       if (!detail::calc_is_behind_bone(bone, local, cp, &face_normal)) continue;
       clearance[b][p] = -cp.distance;  // inside: minus the depth (never culls)
       if (cp.distance <= rest_depth) continue;  // not deeper than at rest
+      // flagged whether or not a contact slot is free (a third bone finds both slots taken)
+      if (inside_muscle) (*inside_muscle)[model.muscle_of[p]] = 1;
       if (max_depth_per_muscle) {
         double& d = (*max_depth_per_muscle)[model.muscle_of[p]];
         d = std::max(d, cp.distance - rest_depth);
@@ -1556,7 +1559,7 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
   // the frame.
   double error = worst_volume_error();
   consider(2, error);
-  for (int pass = 0; pass < 3 && error > o.volume_tolerance; ++pass) {
+  for (int pass = 0; pass < 3 && !(error <= o.volume_tolerance); ++pass) {  // NaN: go on
     ++info.final_passes;
     restore_volumes();
     push_surfaces_apart();
@@ -1566,7 +1569,7 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
     error = worst_volume_error();
     consider(3 + pass, error);
   }
-  if (error > o.volume_tolerance && best.stage > 0 && best.stage != current_stage) {
+  if (!(error <= o.volume_tolerance) && best.stage > 0 && best.stage != current_stage) {
     x = std::move(best.x);
     ws.bone_contacts = std::move(best.contacts);
     info.final_state_restored = best.stage;
@@ -1584,7 +1587,8 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
   // two faces (another frame of the same walk: 0.6 mm inside after four plane projections).
   for (int k = 0; k < 4; ++k) {
     std::vector<char> inside(nm, 0);
-    detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr, &inside);
+    detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr, nullptr,
+                         &inside);
     if (std::find(inside.begin(), inside.end(), 1) == inside.end()) break;
     revalidate_far_bone_contacts(ctx, x, ws.bone_contacts);
     project_onto_bones(k > 0);

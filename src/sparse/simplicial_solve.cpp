@@ -208,6 +208,7 @@ bool solve_simplicial_ldlt(const void* factor, double* B, int ncols, int ld,
   if (!is_simplicial_ldlt(factor) || ncols < 1 || ncols > 8) return false;
   const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
   const int n = static_cast<int>(L.n);
+  if (ld < n) return false;  // B's columns must hold n rows
   const int W = ncols <= 4 ? 1 : 2, S = 4 * W;
   // Unused lanes hold 0, which the solve keeps (0 - l 0, 0 / d): they are cleared only when the
   // layout changes.

@@ -31,7 +31,7 @@ bool is_simplicial_ldlt(const void* factor);
 
 // Solves A x = b in place for ncols ≤ 8 right-hand sides stored column-major in B (leading
 // dimension ld ≥ n), where CHOLMOD factorised P A Pᵀ = L D Lᵀ: x = Pᵀ L⁻ᵀ D⁻¹ L⁻¹ P b. Returns
-// false (B untouched) when !is_simplicial_ldlt(factor) or ncols is not in 1..8; the caller then
+// false (B untouched) when !is_simplicial_ldlt(factor), ncols is not in 1..8 or ld < n; the caller then
 // uses CHOLMOD's own solve.
 bool solve_simplicial_ldlt(const void* factor, double* B, int ncols, int ld,
                            SimplicialSolveWorkspace& workspace);
