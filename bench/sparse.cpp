@@ -6,6 +6,7 @@
 #include "fascicle/deformation/surface_first.hpp"
 #include "fascicle/geometry/mesh_query.hpp"
 #include "fascicle/io/mesh_io.hpp"
+#include "fascicle/sparse/cholmod_view.hpp"
 #include "fascicle/sparse/supernodal_solve.hpp"
 
 #include <benchmark/benchmark.h>
@@ -37,18 +38,8 @@ struct SoleusFactor {
     cholmod_start(&c);
     c.print = 0;
     c.supernodal = CHOLMOD_SUPERNODAL;
-    cholmod_sparse S{};
-    S.nrow = S.ncol = static_cast<std::size_t>(K.rows());
-    S.nzmax = static_cast<std::size_t>(K.nonZeros());
-    S.p = K.outerIndexPtr();
-    S.i = K.innerIndexPtr();
-    S.x = K.valuePtr();
-    S.stype = -1;  // lower triangle of the symmetric matrix
-    S.itype = CHOLMOD_INT;
-    S.xtype = CHOLMOD_REAL;
-    S.dtype = CHOLMOD_DOUBLE;
-    S.sorted = 1;
-    S.packed = 1;
+    cholmod_sparse S = view_symmetric_lower(static_cast<std::size_t>(K.rows()), static_cast<std::size_t>(K.nonZeros()),
+                                            K.outerIndexPtr(), K.innerIndexPtr(), K.valuePtr());
     L = cholmod_analyze(&S, &c);
     cholmod_factorize(&S, L, &c);
   }

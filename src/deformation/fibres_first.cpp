@@ -7,6 +7,7 @@
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/parallel.hpp"
 #include "fascicle/deformation/mesh_operators.hpp"
+#include "fascicle/sparse/cholmod_view.hpp"
 #include "fascicle/sparse/simplicial_solve.hpp"
 
 #include <Eigen/SVD>
@@ -102,18 +103,8 @@ class LdlFactor {
 
   // K: symmetric, lower triangle stored, compressed. False when not positive definite.
   bool factorise(SparseMatrix& K) {
-    cholmod_sparse A{};
-    A.nrow = A.ncol = static_cast<std::size_t>(K.rows());
-    A.nzmax = static_cast<std::size_t>(K.nonZeros());
-    A.p = K.outerIndexPtr();
-    A.i = K.innerIndexPtr();
-    A.x = K.valuePtr();
-    A.stype = -1;
-    A.itype = CHOLMOD_INT;
-    A.xtype = CHOLMOD_REAL;
-    A.dtype = CHOLMOD_DOUBLE;
-    A.sorted = 1;
-    A.packed = 1;
+    cholmod_sparse A = view_symmetric_lower(static_cast<std::size_t>(K.rows()), static_cast<std::size_t>(K.nonZeros()),
+                                            K.outerIndexPtr(), K.innerIndexPtr(), K.valuePtr());
     if (!L_) {
       {
         const std::lock_guard lock(get_ordering_mutex());  // AMD or METIS (shared GKlib state)

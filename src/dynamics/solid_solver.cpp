@@ -4,6 +4,7 @@
 // halving on failure and the exact volume projection per step (§4.4).
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/parallel.hpp"
+#include "fascicle/sparse/cholmod_view.hpp"
 #include "fascicle/sparse/supernodal_solve.hpp"
 #include "internal.hpp"
 
@@ -156,19 +157,7 @@ class FreeBlockCholesky {
 
  private:
   cholmod_sparse get_view() {
-    cholmod_sparse s{};
-    s.nrow = s.ncol = static_cast<std::size_t>(nf_);
-    s.nzmax = x_.size();
-    s.p = p_.data();
-    s.i = i_.data();
-    s.x = x_.data();
-    s.stype = -1;  // lower triangle stored
-    s.itype = CHOLMOD_INT;
-    s.xtype = CHOLMOD_REAL;
-    s.dtype = CHOLMOD_DOUBLE;
-    s.sorted = 1;
-    s.packed = 1;
-    return s;
+    return view_symmetric_lower(static_cast<std::size_t>(nf_), x_.size(), p_.data(), i_.data(), x_.data());
   }
   cholmod_common c_{};
   cholmod_factor* L_ = nullptr;

@@ -6,6 +6,7 @@
 #include "fascicle/deformation/surface_first.hpp"
 #include "fascicle/io/mesh_io.hpp"
 #include "fascicle/sparse/supernodal_solve.hpp"
+#include "fascicle/sparse/cholmod_view.hpp"
 
 #include "test_support.hpp"
 
@@ -34,18 +35,8 @@ class SupernodalClonesOnSoleus : public ::testing::Test {
     cholmod_start(&c_);
     c_.print = 0;
     c_.supernodal = CHOLMOD_SUPERNODAL;
-    cholmod_sparse S{};
-    S.nrow = S.ncol = static_cast<std::size_t>(K_.rows());
-    S.nzmax = static_cast<std::size_t>(K_.nonZeros());
-    S.p = K_.outerIndexPtr();
-    S.i = K_.innerIndexPtr();
-    S.x = K_.valuePtr();
-    S.stype = -1;
-    S.itype = CHOLMOD_INT;
-    S.xtype = CHOLMOD_REAL;
-    S.dtype = CHOLMOD_DOUBLE;
-    S.sorted = 1;
-    S.packed = 1;
+    cholmod_sparse S = view_symmetric_lower(static_cast<std::size_t>(K_.rows()), static_cast<std::size_t>(K_.nonZeros()),
+                                            K_.outerIndexPtr(), K_.innerIndexPtr(), K_.valuePtr());
     L_ = cholmod_analyze(&S, &c_);
     ASSERT_NE(L_, nullptr);
     ASSERT_TRUE(cholmod_factorize(&S, L_, &c_));

@@ -1,6 +1,8 @@
 // The one-pass simplicial LDLᵀ solve against CHOLMOD's own solve (cholmod_solve2), on factors
 // that CHOLMOD ordered, factorised and modified by rank-one updates and downdates.
 #include "fascicle/sparse/simplicial_solve.hpp"
+#include "fascicle/sparse/cholmod_view.hpp"
+#include "lower_csc.hpp"
 
 #include <gtest/gtest.h>
 #include <suitesparse/cholmod.h>
@@ -17,11 +19,7 @@ namespace {
 // A spring lattice like the fibres-first systems: `fibres` chains of `length` particles, each
 // particle joined to the next along its chain and to the same index on two other chains, with
 // random stiffnesses and a small diagonal term (the fixed ends), rows shuffled. Lower triangle.
-struct Lattice {
-  int n = 0;
-  std::vector<int> p, i;
-  std::vector<double> x;
-};
+using Lattice = test::LowerCsc;
 
 Lattice make_lattice(int fibres, int length, unsigned seed) {
   std::mt19937 rng(seed);
@@ -49,25 +47,7 @@ Lattice make_lattice(int fibres, int length, unsigned seed) {
         if (g != f) spring(f * length + s, g * length + s);
       }
     }
-  Lattice A;
-  A.n = n;
-  A.p.push_back(0);
-  for (int c = 0; c < n; ++c) {
-    std::vector<std::pair<int, double>> entries = cols[c];
-    entries.push_back({c, diag[c]});
-    std::sort(entries.begin(), entries.end());
-    std::vector<std::pair<int, double>> merged;
-    for (const auto& e : entries) {
-      if (!merged.empty() && merged.back().first == e.first) merged.back().second += e.second;
-      else merged.push_back(e);
-    }
-    for (const auto& e : merged) {
-      A.i.push_back(e.first);
-      A.x.push_back(e.second);
-    }
-    A.p.push_back(static_cast<int>(A.i.size()));
-  }
-  return A;
+  return test::assemble_lower_csc(std::move(cols), diag);
 }
 
 class SimplicialSolve : public ::testing::Test {
@@ -78,17 +58,7 @@ class SimplicialSolve : public ::testing::Test {
     c_.supernodal = CHOLMOD_SIMPLICIAL;
     c_.final_ll = 0;
     A_ = make_lattice(40, 15, 7u);
-    view_.nrow = view_.ncol = static_cast<std::size_t>(A_.n);
-    view_.nzmax = A_.x.size();
-    view_.p = A_.p.data();
-    view_.i = A_.i.data();
-    view_.x = A_.x.data();
-    view_.stype = -1;
-    view_.itype = CHOLMOD_INT;
-    view_.xtype = CHOLMOD_REAL;
-    view_.dtype = CHOLMOD_DOUBLE;
-    view_.sorted = 1;
-    view_.packed = 1;
+    view_ = view_symmetric_lower(static_cast<std::size_t>(A_.n), A_.x.size(), A_.p.data(), A_.i.data(), A_.x.data());
     L_ = cholmod_analyze(&view_, &c_);
     ASSERT_NE(L_, nullptr);
     ASSERT_TRUE(cholmod_factorize(&view_, L_, &c_));

@@ -1,5 +1,7 @@
 // The supernodal LLᵀ solve against CHOLMOD's own solve on a permuted factor.
 #include "fascicle/sparse/supernodal_solve.hpp"
+#include "fascicle/sparse/cholmod_view.hpp"
+#include "lower_csc.hpp"
 
 #include <gtest/gtest.h>
 #include <suitesparse/cholmod.h>
@@ -17,11 +19,7 @@ namespace {
 // random off-diagonal weights and random extra couplings, diagonally dominant. Rows are shuffled
 // so the fill-reducing ordering CHOLMOD picks is far from the identity, and the 3-D grid gives
 // supernodes of many sizes (wide ones near the root of the elimination tree).
-struct TestMatrix {
-  int n = 0;
-  std::vector<int> p, i;
-  std::vector<double> x;
-};
+using TestMatrix = test::LowerCsc;
 
 TestMatrix make_matrix(int side, unsigned seed) {
   std::mt19937 rng(seed);
@@ -50,26 +48,7 @@ TestMatrix make_matrix(int side, unsigned seed) {
       }
   std::uniform_int_distribution<int> any(0, n - 1);
   for (int e = 0; e < n / 10; ++e) couple(any(rng), any(rng), w(rng));
-  TestMatrix A;
-  A.n = n;
-  A.p.push_back(0);
-  for (int c = 0; c < n; ++c) {
-    std::vector<std::pair<int, double>> entries = cols[c];
-    entries.push_back({c, diag[c]});
-    std::sort(entries.begin(), entries.end());
-    // merge duplicates (the random couplings may repeat a pair)
-    std::vector<std::pair<int, double>> merged;
-    for (const auto& e : entries) {
-      if (!merged.empty() && merged.back().first == e.first) merged.back().second += e.second;
-      else merged.push_back(e);
-    }
-    for (const auto& e : merged) {
-      A.i.push_back(e.first);
-      A.x.push_back(e.second);
-    }
-    A.p.push_back(static_cast<int>(A.i.size()));
-  }
-  return A;
+  return test::assemble_lower_csc(std::move(cols), diag);
 }
 
 class SupernodalSolve : public ::testing::Test {
@@ -79,19 +58,7 @@ class SupernodalSolve : public ::testing::Test {
     c_.print = 0;
     c_.supernodal = CHOLMOD_SUPERNODAL;
     A_ = make_matrix(12, 7u);
-    cholmod_sparse S{};
-    S.nrow = S.ncol = static_cast<std::size_t>(A_.n);
-    S.nzmax = A_.x.size();
-    S.p = A_.p.data();
-    S.i = A_.i.data();
-    S.x = A_.x.data();
-    S.stype = -1;
-    S.itype = CHOLMOD_INT;
-    S.xtype = CHOLMOD_REAL;
-    S.dtype = CHOLMOD_DOUBLE;
-    S.sorted = 1;
-    S.packed = 1;
-    S_ = S;
+    S_ = view_symmetric_lower(static_cast<std::size_t>(A_.n), A_.x.size(), A_.p.data(), A_.i.data(), A_.x.data());
     L_ = cholmod_analyze(&S_, &c_);
     ASSERT_NE(L_, nullptr);
     ASSERT_TRUE(cholmod_factorize(&S_, L_, &c_));
