@@ -56,6 +56,16 @@ struct EndBones {
   std::vector<const MeshQuery*> list() const { return {&bottom, &top}; }
 };
 
+// Two bundles along z between the end bones, with box surfaces for the surface particles:
+// "pushed" (3 x 3 fibres, 11 mm square) on the axis and "aside" (2 x 2, 7 mm) 12 mm away along −x.
+std::pair<FibreBundleSpec, FibreBundleSpec> make_pushed_and_aside(double L) {
+  FibreBundleSpec a{"pushed", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 3, 3, 0.004), 0, 1};
+  a.rest_surface = moved(make_box(Vec3(0.0055, 0.0055, L / 2)), Vec3(0, 0, L / 2));
+  FibreBundleSpec b{"aside", make_bundle(Vec3(-0.012, 0, 0), Vec3::UnitZ(), Vec3::UnitX(), L, 2, 2, 0.004), 0, 1};
+  b.rest_surface = moved(make_box(Vec3(0.0035, 0.0035, L / 2)), Vec3(-0.012, 0, L / 2));
+  return {a, b};
+}
+
 FibresFirstOptions tight_options() {
   FibresFirstOptions o;
   o.max_iterations = 400;
@@ -552,10 +562,7 @@ TEST(FibresFirst, FinalProjectionNeverEndsWorseThanItStarted) {
   const EndBones ends(L);
   const MeshQuery block(moved(make_box(Vec3(0.01, 0.03, 0.01)), Vec3(0.016, 0.0, L / 2)));
   const MeshQuery wall(moved(make_box(Vec3(0.005, 0.03, 0.03)), Vec3(-0.021, 0.0, L / 2)));
-  FibreBundleSpec a{"pushed", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 3, 3, 0.004), 0, 1};
-  a.rest_surface = moved(make_box(Vec3(0.0055, 0.0055, L / 2)), Vec3(0, 0, L / 2));
-  FibreBundleSpec b{"aside", make_bundle(Vec3(-0.012, 0, 0), Vec3::UnitZ(), Vec3::UnitX(), L, 2, 2, 0.004), 0, 1};
-  b.rest_surface = moved(make_box(Vec3(0.0035, 0.0035, L / 2)), Vec3(-0.012, 0, L / 2));
+  const auto [a, b] = make_pushed_and_aside(L);
   FibresFirstOptions o;
   o.surface_particles = true;
   o.separate_surfaces = true;
@@ -665,10 +672,7 @@ TEST(FibresFirst, BoneContactsFarFromTheirBoneAreReleased) {
   const double L = 0.1;
   const EndBones ends(L);
   const MeshQuery block(moved(make_box(Vec3(0.01, 0.03, 0.01)), Vec3(0.016, 0.0, L / 2)));
-  FibreBundleSpec a{"pushed", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 3, 3, 0.004), 0, 1};
-  a.rest_surface = moved(make_box(Vec3(0.0055, 0.0055, L / 2)), Vec3(0, 0, L / 2));
-  FibreBundleSpec b{"aside", make_bundle(Vec3(-0.012, 0, 0), Vec3::UnitZ(), Vec3::UnitX(), L, 2, 2, 0.004), 0, 1};
-  b.rest_surface = moved(make_box(Vec3(0.0035, 0.0035, L / 2)), Vec3(-0.012, 0, L / 2));
+  const auto [a, b] = make_pushed_and_aside(L);
   FibresFirstOptions o;
   o.surface_particles = true;
   o.separate_surfaces = true;
