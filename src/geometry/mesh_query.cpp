@@ -271,6 +271,13 @@ struct MeshQuery::Bvh {
   // Per leaf: a slab-cylinder {x : h_lo <= n.(x - c) <= h_hi, |in-plane offset| <= R} that holds
   // all its triangles (c the anchor, n the area-weighted mean normal, zero if it vanishes).
   std::vector<double> leaf_bound;
+  // Per cluster, from fill_slots (refit_compact_tree's input): the corners' box (lo x, y, z, hi x,
+  // y, z) and the sum of the triangles' cross products (b - a) x (c - a) in slot order.
+  std::vector<double> cluster_box;
+  std::vector<double> cluster_normal;
+  // Per leaf (cluster) of the compact tree: its padded box rounded outward to float (lo x, y, z,
+  // hi x, y, z), the box the Embree scene's bounds callback would compute (it copies it).
+  std::vector<float> leaf_box;
   // Max over the nodes' leaf children of |centre - anchor| + R + max(|h_lo|, |h_hi|): any point
   // within `limit` of such a leaf is within limit + node_extent of the anchor (float margins).
   double node_extent = 0.0;
@@ -399,6 +406,18 @@ float to_float_or_infinity(double x) {
 // Padded, outward-rounded float box of one cluster of double triangles.
 void bounds_callback(const RTCBoundsFunctionArguments* args) {
   const auto* bvh = static_cast<const MeshQuery::Bvh*>(args->geometryUserPtr);
+  RTCBounds* b = args->bounds_o;
+  if (bvh->compact && bvh->leaf_box.size() == 6 * static_cast<std::size_t>(bvh->num_clusters())) {
+    // refit_compact_tree computed this very box (same corners, pad and rounding) just before.
+    const float* box = bvh->leaf_box.data() + 6 * static_cast<std::size_t>(args->primID);
+    b->lower_x = box[0];
+    b->lower_y = box[1];
+    b->lower_z = box[2];
+    b->upper_x = box[3];
+    b->upper_y = box[4];
+    b->upper_z = box[5];
+    return;
+  }
   double lo[3], hi[3];
   for (int k = 0; k < 3; ++k) {
     lo[k] = std::numeric_limits<double>::infinity();
@@ -415,7 +434,6 @@ void bounds_callback(const RTCBoundsFunctionArguments* args) {
     lo[k] -= bvh->pad;
     hi[k] += bvh->pad;
   }
-  RTCBounds* b = args->bounds_o;
   b->lower_x = round_down(lo[0]);
   b->lower_y = round_down(lo[1]);
   b->lower_z = round_down(lo[2]);
@@ -932,7 +950,11 @@ void fill_slots(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
   constexpr unsigned K = MeshQuery::Bvh::kCluster;
   const std::size_t num_clusters = bvh.num_clusters();
   bvh.corners.resize(9 * static_cast<std::size_t>(bvh.num_slots));
-  bvh.soa.assign(MeshQuery::Bvh::kSoaRows * K * num_clusters, 0.0f);
+  // Lanes past a cluster's triangles stay zero from the first fill (refits write the same lanes).
+  if (bvh.soa.size() != MeshQuery::Bvh::kSoaRows * K * num_clusters)
+    bvh.soa.assign(MeshQuery::Bvh::kSoaRows * K * num_clusters, 0.0f);
+  bvh.cluster_box.resize(6 * num_clusters);
+  bvh.cluster_normal.resize(3 * num_clusters);
   bvh.anchors.resize(3 * num_clusters);
   // Per cluster: an upper bound of max(|centre - anchor| + radius) (max |rel| + max radius).
   std::vector<double> extent(num_clusters, 0.0);
@@ -958,9 +980,19 @@ void fill_slots(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
     for (int j = 0; j < 3; ++j) bvh.anchors[3 * cluster + static_cast<std::size_t>(j)] = anchor[j];
     float* block = bvh.soa.data() + MeshQuery::Bvh::kSoaRows * K * cluster;
     double max_rel2 = 0.0, max_r = 0.0;
+    double lo[3], hi[3];
+    for (int j = 0; j < 3; ++j) {
+      lo[j] = std::numeric_limits<double>::infinity();
+      hi[j] = -std::numeric_limits<double>::infinity();
+    }
+    Vec3 normal_sum = Vec3::Zero();
     for (std::size_t k = 0; k < count; ++k) {
       const auto slot = static_cast<unsigned>(first + k);
       const Vec3 a = bvh.corner(slot, 0), b = bvh.corner(slot, 1), cc = bvh.corner(slot, 2);
+      for (int j = 0; j < 3; ++j) {
+        lo[j] = std::min(lo[j], std::min(a[j], std::min(b[j], cc[j])));
+        hi[j] = std::max(hi[j], std::max(a[j], std::max(b[j], cc[j])));
+      }
       const Vec3& centre = centres[k];
       const double r = std::sqrt(std::max({(a - centre).squaredNorm(), (b - centre).squaredNorm(),
                                            (cc - centre).squaredNorm()}));
@@ -968,6 +1000,7 @@ void fill_slots(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
       // that angle is not tiny (error < 1e-12), otherwise fall back to the sphere bound (n = 0).
       const Vec3 ab = b - a, ac = cc - a;
       const Vec3 n = ab.cross(ac);
+      normal_sum += n;
       const double n_len2 = n.squaredNorm();
       const Vec3 unit = n_len2 > 1e-8 * ab.squaredNorm() * ac.squaredNorm() ? Vec3(n / std::sqrt(n_len2))
                                                                            : Vec3::Zero();
@@ -983,6 +1016,11 @@ void fill_slots(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
       max_r = std::max(max_r, r);
     }
     extent[cluster] = std::sqrt(max_rel2) + max_r;
+    for (int j = 0; j < 3; ++j) {
+      bvh.cluster_box[6 * cluster + static_cast<std::size_t>(j)] = lo[j];
+      bvh.cluster_box[6 * cluster + 3 + static_cast<std::size_t>(j)] = hi[j];
+      bvh.cluster_normal[3 * cluster + static_cast<std::size_t>(j)] = normal_sum[j];
+    }
   }
   bvh.cluster_extent = num_clusters > 0 ? *std::max_element(extent.begin(), extent.end()) : 0.0;
   bvh.box_lo = mesh.V.colwise().minCoeff().transpose();
@@ -1023,47 +1061,54 @@ void build_start_grid(MeshQuery::Bvh& bvh) {
   // recompute, so the choices are unchanged).
   std::vector<double> grid_d2(cells, std::numeric_limits<double>::infinity());
   const int nx = bvh.grid_n[0], ny = bvh.grid_n[1], nz = bvh.grid_n[2];
-  const auto centre_of = [&](int i, int j, int k) {
-    return Vec3(bvh.grid_lo.x() + (i + 0.5) * cell, bvh.grid_lo.y() + (j + 0.5) * cell,
-                bvh.grid_lo.z() + (k + 0.5) * cell);
-  };
-  const auto cell_index = [&](int i, int j, int k) {
-    return static_cast<std::size_t>(i) + static_cast<std::size_t>(nx) * (static_cast<std::size_t>(j) + static_cast<std::size_t>(ny) * static_cast<std::size_t>(k));
-  };
-  // Offers vertex v to cell (i, j, k): kept if nearer to its centre than the current one.
-  const auto offer = [&](int i, int j, int k, unsigned v) {
+  // Cell centres per axis (centre of cell (i, j, k) = (cx[i], cy[j], cz[k])).
+  std::vector<double> cx(static_cast<std::size_t>(nx)), cy(static_cast<std::size_t>(ny)), cz(static_cast<std::size_t>(nz));
+  for (int i = 0; i < nx; ++i) cx[static_cast<std::size_t>(i)] = bvh.grid_lo.x() + (i + 0.5) * cell;
+  for (int j = 0; j < ny; ++j) cy[static_cast<std::size_t>(j)] = bvh.grid_lo.y() + (j + 0.5) * cell;
+  for (int k = 0; k < nz; ++k) cz[static_cast<std::size_t>(k)] = bvh.grid_lo.z() + (k + 0.5) * cell;
+  unsigned* const grid = bvh.grid_vertex.data();
+  double* const d2_of = grid_d2.data();
+  // Offers vertex v to the cell with index `c` and centre `centre`: kept if nearer to the centre
+  // than the current one.
+  const auto offer = [&](std::size_t c, const Vec3& centre, unsigned v) {
     if (v == kNone) return;
-    const std::size_t cell = cell_index(i, j, k);
-    unsigned& current = bvh.grid_vertex[cell];
-    const double d2 = bvh.vertex_distance2(v, centre_of(i, j, k));
-    if (current == kNone || d2 < grid_d2[cell]) {
-      current = v;
-      grid_d2[cell] = d2;
+    const double d2 = bvh.vertex_distance2(v, centre);
+    if (grid[c] == kNone || d2 < d2_of[c]) {
+      grid[c] = v;
+      d2_of[c] = d2;
     }
   };
+  const std::size_t sx = 1, sy = static_cast<std::size_t>(nx), sz = static_cast<std::size_t>(nx) * static_cast<std::size_t>(ny);
   for (unsigned v = 0; v < num_welded; ++v) {
     const Vec3 x(bvh.vertex_xyz[3 * v], bvh.vertex_xyz[3 * v + 1], bvh.vertex_xyz[3 * v + 2]);
     int ijk[3];
     for (int k = 0; k < 3; ++k) {
       ijk[k] = std::clamp(static_cast<int>((x[k] - bvh.grid_lo[k]) / cell), 0, bvh.grid_n[k] - 1);
     }
-    offer(ijk[0], ijk[1], ijk[2], v);
+    const auto i = static_cast<std::size_t>(ijk[0]), j = static_cast<std::size_t>(ijk[1]), k = static_cast<std::size_t>(ijk[2]);
+    offer(i * sx + j * sy + k * sz, Vec3(cx[i], cy[j], cz[k]), v);
   }
   for (int k = 0; k < nz; ++k) {
     for (int j = 0; j < ny; ++j) {
+      const std::size_t row = static_cast<std::size_t>(j) * sy + static_cast<std::size_t>(k) * sz;
       for (int i = 0; i < nx; ++i) {
-        if (i > 0) offer(i, j, k, bvh.grid_vertex[cell_index(i - 1, j, k)]);
-        if (j > 0) offer(i, j, k, bvh.grid_vertex[cell_index(i, j - 1, k)]);
-        if (k > 0) offer(i, j, k, bvh.grid_vertex[cell_index(i, j, k - 1)]);
+        const std::size_t c = row + static_cast<std::size_t>(i);
+        const Vec3 centre(cx[static_cast<std::size_t>(i)], cy[static_cast<std::size_t>(j)], cz[static_cast<std::size_t>(k)]);
+        if (i > 0) offer(c, centre, grid[c - sx]);
+        if (j > 0) offer(c, centre, grid[c - sy]);
+        if (k > 0) offer(c, centre, grid[c - sz]);
       }
     }
   }
   for (int k = nz - 1; k >= 0; --k) {
     for (int j = ny - 1; j >= 0; --j) {
+      const std::size_t row = static_cast<std::size_t>(j) * sy + static_cast<std::size_t>(k) * sz;
       for (int i = nx - 1; i >= 0; --i) {
-        if (i + 1 < nx) offer(i, j, k, bvh.grid_vertex[cell_index(i + 1, j, k)]);
-        if (j + 1 < ny) offer(i, j, k, bvh.grid_vertex[cell_index(i, j + 1, k)]);
-        if (k + 1 < nz) offer(i, j, k, bvh.grid_vertex[cell_index(i, j, k + 1)]);
+        const std::size_t c = row + static_cast<std::size_t>(i);
+        const Vec3 centre(cx[static_cast<std::size_t>(i)], cy[static_cast<std::size_t>(j)], cz[static_cast<std::size_t>(k)]);
+        if (i + 1 < nx) offer(c, centre, grid[c + sx]);
+        if (j + 1 < ny) offer(c, centre, grid[c + sy]);
+        if (k + 1 < nz) offer(c, centre, grid[c + sz]);
       }
     }
   }
@@ -1259,23 +1304,15 @@ std::vector<Eigen::Index> build_compact_tree(MeshQuery::Bvh& bvh, const TriMesh&
 // contains the exact triangles); a node's child box is the union of that child's boxes.
 void refit_compact_tree(MeshQuery::Bvh& bvh) {
   const unsigned num_clusters = bvh.num_clusters();
-  bvh.leaf_bound.assign(MeshQuery::Bvh::kLeafBoundSize * num_clusters, 0.0);
-  std::vector<float> leaf_box(6 * static_cast<std::size_t>(num_clusters));
+  bvh.leaf_bound.resize(MeshQuery::Bvh::kLeafBoundSize * num_clusters);  // every entry set below
+  bvh.leaf_box.resize(6 * static_cast<std::size_t>(num_clusters));
+  std::vector<float>& leaf_box = bvh.leaf_box;
   for (unsigned c = 0; c < num_clusters; ++c) {
-    double lo[3], hi[3];
-    for (int k = 0; k < 3; ++k) {
-      lo[k] = std::numeric_limits<double>::infinity();
-      hi[k] = -std::numeric_limits<double>::infinity();
-    }
-    Vec3 normal = Vec3::Zero();
-    for (unsigned t = bvh.slot_begin(c); t < bvh.slot_end(c); ++t) {
-      const double* x = bvh.corners.data() + 9 * static_cast<std::size_t>(t);
-      for (int k = 0; k < 3; ++k) {
-        lo[k] = std::min({lo[k], x[k], x[3 + k], x[6 + k]});
-        hi[k] = std::max({hi[k], x[k], x[3 + k], x[6 + k]});
-      }
-      normal += (bvh.corner(t, 1) - bvh.corner(t, 0)).cross(bvh.corner(t, 2) - bvh.corner(t, 0));
-    }
+    // The corners' box and the area-weighted normal (sum of cross products), from fill_slots.
+    const double* lo = bvh.cluster_box.data() + 6 * static_cast<std::size_t>(c);
+    const double* hi = lo + 3;
+    const double* ns = bvh.cluster_normal.data() + 3 * static_cast<std::size_t>(c);
+    const Vec3 normal(ns[0], ns[1], ns[2]);
     float* box = leaf_box.data() + 6 * static_cast<std::size_t>(c);
     for (int k = 0; k < 3; ++k) {
       box[k] = round_down(lo[k] - bvh.pad);

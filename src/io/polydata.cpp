@@ -23,6 +23,7 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <sstream>
 #include <string>
@@ -124,13 +125,13 @@ vtkSmartPointer<vtkDoubleArray> to_vtk_array(const std::string& name, const MatX
 }
 
 // Cells from VTK 9's offsets + connectivity arrays, stored as 32-bit ids (smaller files; the
-// readers take either width).
-vtkNew<vtkCellArray> make_cells(std::vector<std::int32_t>&& offsets, std::vector<std::int32_t>&& connectivity) {
+// readers take either width), filled in place.
+vtkNew<vtkCellArray> make_cells(vtkIdType num_cells, vtkIdType num_ids,
+                                const std::function<void(std::int32_t* offsets, std::int32_t* connectivity)>& fill) {
   vtkNew<vtkTypeInt32Array> off, conn;
-  off->SetNumberOfValues(static_cast<vtkIdType>(offsets.size()));
-  std::copy(offsets.begin(), offsets.end(), off->GetPointer(0));
-  conn->SetNumberOfValues(static_cast<vtkIdType>(connectivity.size()));
-  std::copy(connectivity.begin(), connectivity.end(), conn->GetPointer(0));
+  off->SetNumberOfValues(num_cells + 1);
+  conn->SetNumberOfValues(num_ids);
+  fill(off->GetPointer(0), conn->GetPointer(0));
   vtkNew<vtkCellArray> cells;
   cells->SetData(off, conn);
   return cells;
@@ -171,20 +172,23 @@ void write_polydata(const std::filesystem::path& path, const PolyData& data, Vtp
   vtkNew<vtkPolyData> poly;
   poly->SetPoints(points);
   if (!data.lines.empty()) {
-    std::vector<std::int32_t> offsets{0}, connectivity;
-    for (const auto& line : data.lines) {
-      connectivity.insert(connectivity.end(), line.begin(), line.end());
-      offsets.push_back(static_cast<std::int32_t>(connectivity.size()));
-    }
-    poly->SetLines(make_cells(std::move(offsets), std::move(connectivity)));
+    vtkIdType ids = 0;
+    for (const auto& line : data.lines) ids += static_cast<vtkIdType>(line.size());
+    poly->SetLines(make_cells(static_cast<vtkIdType>(data.lines.size()), ids, [&](std::int32_t* offsets, std::int32_t* connectivity) {
+      std::int32_t at = 0;
+      offsets[0] = 0;
+      for (std::size_t l = 0; l < data.lines.size(); ++l) {
+        for (const int i : data.lines[l]) connectivity[at++] = i;
+        offsets[l + 1] = at;
+      }
+    }));
   }
   if (data.triangles.rows() > 0) {
-    std::vector<std::int32_t> connectivity(static_cast<std::size_t>(data.triangles.size()));
-    Eigen::Map<Eigen::Matrix<std::int32_t, Eigen::Dynamic, 3, Eigen::RowMajor>>(
-        connectivity.data(), data.triangles.rows(), 3) = data.triangles;
-    std::vector<std::int32_t> offsets(static_cast<std::size_t>(data.triangles.rows()) + 1);
-    for (std::size_t t = 0; t < offsets.size(); ++t) offsets[t] = static_cast<std::int32_t>(3 * t);
-    poly->SetPolys(make_cells(std::move(offsets), std::move(connectivity)));
+    const Eigen::Index nt = data.triangles.rows();
+    poly->SetPolys(make_cells(nt, 3 * nt, [&](std::int32_t* offsets, std::int32_t* connectivity) {
+      Eigen::Map<Eigen::Matrix<std::int32_t, Eigen::Dynamic, 3, Eigen::RowMajor>>(connectivity, nt, 3) = data.triangles;
+      for (Eigen::Index t = 0; t <= nt; ++t) offsets[t] = static_cast<std::int32_t>(3 * t);
+    }));
   }
   for (const auto& f : data.point_fields) poly->GetPointData()->AddArray(to_vtk_array(f.name, f.values));
   for (const auto& f : data.cell_fields) poly->GetCellData()->AddArray(to_vtk_array(f.name, f.values));

@@ -39,39 +39,40 @@ MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, c
   MuscleOverlap out;
   const Eigen::Index n = V.rows();
   constexpr double inf = std::numeric_limits<double>::infinity();
-  if (depth_bound && depth_bound->size() != static_cast<std::size_t>(n)) depth_bound->assign(static_cast<std::size_t>(n), {});
-  // The bounds returned: only for vertices found inside (set below); +inf elsewhere.
+  // The bounds carried in (used only when they have one entry per vertex). The bounds returned
+  // (set at the end) exist only when some vertex is inside: then one entry per vertex, +inf for
+  // the vertices outside; otherwise depth_bound is left empty (no bound known, as +inf).
   std::vector<DepthBound> carried;
   if (depth_bound) {
     carried.swap(*depth_bound);
-    depth_bound->assign(static_cast<std::size_t>(n), {});
+    depth_bound->clear();
   }
+  const bool have_carried = carried.size() == static_cast<std::size_t>(n);
   // The unknown vertices: those in other's box (and oriented bounds); every other vertex lies
   // outside a convex set holding other's surface, so its winding number is 0.
-  std::vector<int> local(static_cast<std::size_t>(n), -1);  // -1: left out; -2: in the box
-  int unknown = 0;
+  std::vector<int> unknown_vertices;
   for (Eigen::Index i = 0; i < n; ++i) {
     const Vec3 x = V.row(i).transpose();
-    if (other_box.contains(x) && (!other_bounds || other_bounds->contains(x))) {
-      local[i] = -2;
-      ++unknown;
-    }
+    if (other_box.contains(x) && (!other_bounds || other_bounds->contains(x)))
+      unknown_vertices.push_back(static_cast<int>(i));
   }
+  const auto unknown = static_cast<int>(unknown_vertices.size());
   if (unknown == 0) return out;
   // The sub-graph: unknown vertices plus their known neighbours, kept in a's vertex order. The full
   // propagation queues every known vertex in that order; known vertices without an unknown
   // neighbour reach nothing, so leaving them out keeps the visiting order unchanged.
-  std::vector<char> in_box(static_cast<std::size_t>(n), 0);
-  for (Eigen::Index i = 0; i < n; ++i)
-    if (local[i] == -2) {
-      in_box[i] = 1;
-      for (int k = graph.start[i]; k < graph.start[i + 1]; ++k)
-        if (local[graph.neighbours[k]] == -1) local[graph.neighbours[k]] = -3;  // a known neighbour
-    }
+  std::vector<int> local(static_cast<std::size_t>(n), -1);  // -1: left out; -2: unknown; -3: known neighbour
+  for (const int i : unknown_vertices) local[static_cast<std::size_t>(i)] = -2;
+  for (const int i : unknown_vertices)
+    for (int k = graph.start[i]; k < graph.start[i + 1]; ++k)
+      if (local[graph.neighbours[k]] == -1) local[graph.neighbours[k]] = -3;
   std::vector<int> keep;
+  std::vector<char> in_box;  // per kept vertex: 1 unknown, 0 known neighbour
   keep.reserve(static_cast<std::size_t>(unknown) * 2);
+  in_box.reserve(static_cast<std::size_t>(unknown) * 2);
   for (Eigen::Index i = 0; i < n; ++i)
     if (local[i] != -1) {
+      in_box.push_back(local[i] == -2);
       local[i] = static_cast<int>(keep.size());
       keep.push_back(static_cast<int>(i));
     }
@@ -84,7 +85,7 @@ MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, c
   for (Eigen::Index l = 0; l < m; ++l) {
     const int g = keep[l];
     P.row(l) = V.row(g);
-    winding[l] = in_box[g] ? -1 : 0;
+    winding[l] = in_box[l] ? -1 : 0;
     // A known vertex's known neighbours are skipped by the propagation: leave them out.
     for (int k = graph.start[g]; k < graph.start[g + 1]; ++k)
       if (const int q = local[graph.neighbours[k]]; q >= 0) sub.neighbours.push_back(q);
@@ -104,7 +105,7 @@ MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, c
   // Which vertices are measured never changes the result: the deepest vertex cannot be pruned.
   std::vector<double> bound(static_cast<std::size_t>(m), inf);
   std::vector<int> triangle(static_cast<std::size_t>(m), -1);  // of the point realising the bound
-  if (depth_bound)
+  if (have_carried)
     for (Eigen::Index l = 0; l < m; ++l) {
       bound[l] = carried[static_cast<std::size_t>(keep[l])].bound;
       triangle[l] = carried[static_cast<std::size_t>(keep[l])].triangle;
@@ -127,7 +128,7 @@ MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, c
       }
     }
   };
-  if (depth_bound) {
+  if (have_carried) {
     Eigen::Index first = -1;
     for (Eigen::Index l = 0; l < m; ++l)
       if (winding[l] > 0 && bound[l] < inf && (first < 0 || bound[l] > bound[first])) first = l;
@@ -139,9 +140,12 @@ MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, c
     if (measured[l] || bound[l] * (1.0 + 1e-9) + 1e-15 < out.max_depth_m) continue;
     measure(l);
   }
-  if (depth_bound)
+  if (depth_bound && out.vertices_inside > 0) {
+    carried.assign(static_cast<std::size_t>(n), {});  // its storage reused
     for (Eigen::Index l = 0; l < m; ++l)
-      if (winding[l] > 0) (*depth_bound)[static_cast<std::size_t>(keep[l])] = {bound[l], triangle[l]};
+      if (winding[l] > 0) carried[static_cast<std::size_t>(keep[l])] = {bound[l], triangle[l]};
+    depth_bound->swap(carried);
+  }
   return out;
 }
 

@@ -100,7 +100,7 @@ class ParaViewWriter final : public FrameWriter {
         d.triangles = muscle.rest_mesh.F;
         d.point_fields.push_back({"displacement_m", mf.surface - muscle.rest_mesh.V});
         d.cell_fields.push_back({"tendon_force_N", MatX::Constant(d.num_cells(), 1, force)});
-        write("muscle_" + muscle.name, frame_file("muscle", muscle.name, frame), d);
+        write("muscle_" + muscle.name, frame_file("muscle", muscle.name, frame), std::move(d));
       }
       if (mf.action_line.rows() >= 2) {
         PolyData d;
@@ -112,7 +112,8 @@ class ParaViewWriter final : public FrameWriter {
         d.point_fields.push_back({"body_index", body});
         d.cell_fields.push_back({"tendon_force_N", MatX::Constant(1, 1, force)});
         d.cell_fields.push_back({"musculotendon_length_m", MatX::Constant(1, 1, mf.musculotendon_length_m)});
-        write("action_line_" + muscle.name, frame_file("action_line", muscle.name, frame), d, VtpCompression::none);
+        write("action_line_" + muscle.name, frame_file("action_line", muscle.name, frame), std::move(d),
+              VtpCompression::none);
       }
       if (!mf.fibres.empty()) {
         PolyData d;
@@ -143,7 +144,7 @@ class ParaViewWriter final : public FrameWriter {
         const double fibre_force = mf.hill.active_fiber_force_N + mf.hill.passive_fiber_force_N;
         if (std::isfinite(fibre_force))
           d.cell_fields.push_back({"fibre_force_N", MatX::Constant(n_fibres, 1, fibre_force / static_cast<double>(n_fibres))});
-        write("fibres_" + muscle.name, frame_file("fibres", muscle.name, frame), d);
+        write("fibres_" + muscle.name, frame_file("fibres", muscle.name, frame), std::move(d));
       }
     }
     parallel_for(parts.size(), [&](std::size_t i) {

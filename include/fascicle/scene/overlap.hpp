@@ -67,12 +67,14 @@ struct DepthBound {
   double bound = std::numeric_limits<double>::infinity();
   int triangle = -1;
 };
-// `depth_bound` (optional, one entry per vertex of V): upper bounds of the vertices' distances to
-// other's surface, e.g. carried from an earlier frame (calc_pair_depths in state.cpp widens them by
-// the motions). Vertices whose bound lies below the deepest depth measured so far are not
-// measured; the maximum is the same (the deepest vertex is always measured). On return it holds
-// bounds for this call's surfaces: the measured depth, or the tightest bound known, for the
-// vertices found inside; +inf for the others.
+// `depth_bound` (optional; used when it has one entry per vertex of V, an empty one means no
+// bound known): upper bounds of the vertices' distances to other's surface, e.g. carried from an
+// earlier frame (calc_pair_depths in state.cpp widens them by the motions). Vertices whose bound
+// lies below the deepest depth measured so far are not measured; the maximum is the same (the
+// deepest vertex is always measured). On return it holds bounds for this call's surfaces: when
+// some vertex is inside, one entry per vertex (the measured depth, or the tightest bound known,
+// for the vertices found inside; +inf for the others); when none is, it is empty (most pairs of a
+// scene: no per-vertex array to fill now and to widen at the next frame).
 MuscleOverlap calc_muscle_overlap(const Points3& V, const SurfaceGraph& graph, const MeshQuery& other,
                                   const Eigen::AlignedBox3d& other_box,
                                   const OrientedBounds* other_bounds = nullptr,
