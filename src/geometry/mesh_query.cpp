@@ -12,9 +12,11 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <mutex>
 #include <new>
 #include <string>
 
@@ -178,6 +180,14 @@ struct MeshQuery::Bvh {
   RTCScene scene = nullptr;
   RTCGeometry geometry = nullptr;  // the clusters (owned by the scene)
   bool refittable = false;         // two-level scene whose commits refit (see build_scene)
+  // A refit's Embree commit waits for the first query that traverses the Embree scene (rays,
+  // inside tests; closest points with embree_clusters): the solvers refit surfaces several times
+  // between ray queries, and only the last positions need the scene's boxes. The refit computes
+  // every box from the current slots (bounds_callback) over the topology of the first build, so
+  // a late commit gives the boxes an eager one would. Queries are const and may run on several
+  // threads: the first one commits under the mutex.
+  mutable std::atomic<bool> commit_pending{false};
+  mutable std::mutex commit_mutex;
   // Triangles are stored in "slots" so that triangles near in space are near in memory: in the
   // depth-first leaf order of the compact tree (default), or in Morton order of their centroids
   // (embree_clusters). Clusters are runs of at most kCluster consecutive slots (the compact tree's
@@ -229,6 +239,9 @@ struct MeshQuery::Bvh {
   double grid_inv_cell = 0.0;
   std::array<int, 3> grid_n{1, 1, 1};
   std::vector<unsigned> grid_vertex;  // x fastest
+  // The welded vertices' positions when the grid was built: update_vertices keeps the grid while
+  // every vertex is within a quarter of a cell of them (grid_is_current).
+  std::vector<double> grid_built_xyz;
   unsigned find_start_vertex(const Vec3& p) const {
     std::size_t index = 0, stride = 1;
     for (int k = 0; k < 3; ++k) {
@@ -795,8 +808,23 @@ void intersect_callback(const RTCIntersectFunctionNArguments* args) {
 
 void occluded_callback(const RTCOccludedFunctionNArguments* /*args*/) {}
 
+// Commits a refit left pending by update_vertices (see Bvh::commit_pending); a no-op otherwise.
+void commit_pending_refit(const MeshQuery::Bvh& bvh) {
+  if (!bvh.commit_pending.load(std::memory_order_acquire)) return;
+  const std::lock_guard lock(bvh.commit_mutex);
+  if (!bvh.commit_pending.load(std::memory_order_relaxed)) return;
+  rtcCommitGeometry(bvh.geometry);
+  rtcCommitScene(bvh.scene);
+  if (const RTCError err = rtcGetDeviceError(bvh.device); err != RTC_ERROR_NONE) {
+    throw_internal("Embree failed to refit the BVH (error code " +
+                   std::to_string(static_cast<int>(err)) + ")");
+  }
+  bvh.commit_pending.store(false, std::memory_order_release);
+}
+
 // Runs one ray through the scene with the given mode.
 void trace(const MeshQuery::Bvh& bvh, RayState& state) {
+  commit_pending_refit(bvh);
   rtcInitIntersectContext(&state.context);
   RTCRayHit rh;
   rh.ray.org_x = static_cast<float>(state.origin.x());
@@ -999,6 +1027,7 @@ void build_start_grid(MeshQuery::Bvh& bvh) {
   const Vec3 lo = bvh.box_lo, hi = bvh.box_hi;
   const double scale = bvh.scale;
   const auto num_welded = static_cast<unsigned>(bvh.vertex_xyz.size() / 3);
+  bvh.grid_built_xyz = bvh.vertex_xyz;
   // Start-vertex grid: cubic cells over the bounding box enlarged by 10% of its diagonal. Each
   // cell holding vertices keeps the one nearest its centre; two raster sweeps (forward with the
   // -x, -y, -z neighbours, backward with +x, +y, +z) then pass to every cell the nearest-to-centre
@@ -1035,6 +1064,7 @@ void build_start_grid(MeshQuery::Bvh& bvh) {
     if (v == kNone) return;
     const std::size_t cell = cell_index(i, j, k);
     unsigned& current = bvh.grid_vertex[cell];
+    if (v == current) return;  // the sweeps pass most cells their own vertex again: no change
     const double d2 = bvh.vertex_distance2(v, centre_of(i, j, k));
     if (current == kNone || d2 < grid_d2[cell]) {
       current = v;
@@ -1069,6 +1099,25 @@ void build_start_grid(MeshQuery::Bvh& bvh) {
   }
 }
 
+// Whether the start-vertex grid may be kept after a refit: every welded vertex is within a
+// quarter of a cell of where it was when the grid was built. Any vertex is a valid start (the
+// descent and the exact traversal find the same closest point from every start, ties going to
+// the lower triangle index), so the grid only steers where the search begins; rebuilding it at
+// every refit cost as much as a third of update_vertices for the small deforming surfaces that
+// the fibres-first solver refits several times per frame.
+bool grid_is_current(const MeshQuery::Bvh& bvh) {
+  if (bvh.grid_built_xyz.size() != bvh.vertex_xyz.size() || bvh.grid_vertex.empty()) return false;
+  const double reach = 0.25 / bvh.grid_inv_cell;
+  const double reach2 = reach * reach;
+  for (std::size_t i = 0; i < bvh.vertex_xyz.size(); i += 3) {
+    const double dx = bvh.vertex_xyz[i] - bvh.grid_built_xyz[i];
+    const double dy = bvh.vertex_xyz[i + 1] - bvh.grid_built_xyz[i + 1];
+    const double dz = bvh.vertex_xyz[i + 2] - bvh.grid_built_xyz[i + 2];
+    if (!(dx * dx + dy * dy + dz * dz <= reach2)) return false;
+  }
+  return true;
+}
+
 // (Re)creates the Embree scene over the clusters. A static scene is one BVH of high quality. A
 // refittable one is two-level (scene quality LOW, the only mode in which Embree honours the
 // geometry's REFIT quality): its first commit builds an SAH tree, later commits only refit the
@@ -1080,6 +1129,7 @@ void build_scene(MeshQuery::Bvh& bvh, bool refittable) {
     bvh.scene = nullptr;
     bvh.geometry = nullptr;
   }
+  bvh.commit_pending.store(false, std::memory_order_relaxed);
   bvh.scene = rtcNewScene(bvh.device);
   rtcSetSceneFlags(bvh.scene, RTC_SCENE_FLAG_ROBUST);
   rtcSetSceneBuildQuality(bvh.scene, refittable ? RTC_BUILD_QUALITY_LOW : RTC_BUILD_QUALITY_HIGH);
@@ -1576,18 +1626,13 @@ void MeshQuery::update_vertices(const Points3& V) {
   // only positions change. The clusters' boxes are refitted by Embree from the bounds callback.
   fill_slots(bvh, mesh_);
   update_welded_positions(bvh, mesh_);
-  build_start_grid(bvh);
+  if (!grid_is_current(bvh)) build_start_grid(bvh);
   if (bvh.compact) refit_compact_tree(bvh);
   if (!bvh.refittable) {
     build_scene(bvh, true);  // first update: one build of the refittable tree
     return;
   }
-  rtcCommitGeometry(bvh.geometry);
-  rtcCommitScene(bvh.scene);
-  if (const RTCError err = rtcGetDeviceError(bvh.device); err != RTC_ERROR_NONE) {
-    throw_internal("Embree failed to refit the BVH (error code " +
-                   std::to_string(static_cast<int>(err)) + ")");
-  }
+  bvh.commit_pending.store(true, std::memory_order_release);  // committed at the next ray
 }
 
 MeshQuery::~MeshQuery() = default;
@@ -1654,6 +1699,7 @@ ClosestPoint MeshQuery::closest_with_hint(const Vec3& p, int hint_triangle,
   if (bvh_->compact) {
     closest_compact(&q, q.start_vertex >= 0 ? static_cast<std::int32_t>(bvh_->home_leaf[static_cast<std::size_t>(q.start_vertex)]) : -1);
   } else {
+    commit_pending_refit(*bvh_);
     RTCPointQueryContext context;
     rtcInitPointQueryContext(&context);
     rtcPointQuery(bvh_->scene, &query, &context, point_query_callback, &q);
