@@ -116,6 +116,7 @@ class LdlFactor {
       for (Eigen::Index r = 0; r < K.rows(); ++r) position_[perm[r]] = static_cast<int>(r);
     }
     const bool ok = cholmod_factorize(&A, L_, &c_) && c_.status == CHOLMOD_OK && L_->minor == L_->n;
+    own_solve_.forget_pattern();  // the solve's copy of L's row indices is made again
     return ok;
   }
 

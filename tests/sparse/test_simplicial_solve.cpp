@@ -161,6 +161,39 @@ TEST_F(SimplicialSolve, EqualsCholmodSolveBitForBitForOneToEightColumns) {
   }
 }
 
+// One workspace across modifications that change L's pattern (a rank-one update coupling the
+// first and the last unknown adds fill; the downdate keeps it): the solve's 16-bit copy of L's
+// row indices follows, and every solve keeps CHOLMOD's bits.
+TEST_F(SimplicialSolve, ReusedWorkspaceFollowsPatternChanges) {
+  SimplicialSolveWorkspace ws;
+  auto expect_cholmod_bits = [&](const char* stage) {
+    for (int ncols : {3, 6}) {
+      const std::vector<double> B = make_rhs(ncols, 70u + ncols);
+      std::vector<double> X = B;
+      ASSERT_TRUE(solve_simplicial_ldlt(L_, X.data(), ncols, A_.n, ws));
+      const std::vector<double> expected = cholmod_solution(B, ncols);
+      EXPECT_EQ(std::memcmp(X.data(), expected.data(), X.size() * sizeof(double)), 0) << stage << ", " << ncols;
+    }
+  };
+  expect_cholmod_bits("before");
+  std::size_t entries_before = 0;
+  for (std::size_t j = 0; j < L_->n; ++j) entries_before += static_cast<const int*>(L_->nz)[j];
+  cholmod_sparse* C = cholmod_allocate_sparse(L_->n, 1, 2, 1, 1, 0, CHOLMOD_REAL, &c_);
+  static_cast<int*>(C->p)[0] = 0;
+  static_cast<int*>(C->p)[1] = 2;
+  static_cast<int*>(C->i)[0] = 0;
+  static_cast<int*>(C->i)[1] = static_cast<int>(L_->n) - 1;
+  static_cast<double*>(C->x)[0] = static_cast<double*>(C->x)[1] = 30.0;
+  ASSERT_TRUE(cholmod_updown(1, C, L_, &c_));
+  std::size_t entries_after = 0;
+  for (std::size_t j = 0; j < L_->n; ++j) entries_after += static_cast<const int*>(L_->nz)[j];
+  EXPECT_GT(entries_after, entries_before);  // the update added fill
+  expect_cholmod_bits("after the update");
+  ASSERT_TRUE(cholmod_updown(0, C, L_, &c_));
+  expect_cholmod_bits("after the downdate");
+  cholmod_free_sparse(&C, &c_);
+}
+
 TEST_F(SimplicialSolve, LeadingDimensionLeavesTheGapUntouched) {
   const int ld = A_.n + 5, ncols = 3;
   const std::vector<double> packed = make_rhs(ncols, 5u);

@@ -9,6 +9,7 @@
 // D⁻¹ and Lᵀ, both with CHOLMOD's chains of up to three consecutive columns that share their
 // pattern), whatever the number of columns; no fused multiply-add. This header does not include
 // cholmod.h: the factor is passed as an opaque pointer.
+#include <cstdint>
 #include <vector>
 
 namespace fascicle {
@@ -23,6 +24,14 @@ struct SimplicialSolveWorkspace {
   SimplicialKernel kernel = SimplicialKernel::automatic;
   std::vector<double> rows;  // P b, one row of up to eight columns per unknown
   int row_width = 0, used_columns = 0;  // layout of `rows` at the last solve (its unused lanes are 0)
+  // L's row indices in 16 bits (n <= 65536), made from L's index array `row_index_source` with
+  // these column starts and counts; made again when any of them differs at a solve. A factor
+  // re-analysed for another matrix inside the same CHOLMOD object with the same column layout is
+  // not detected: call forget_pattern() after any new analysis or factorisation.
+  std::vector<std::uint16_t> row_index16;
+  std::vector<int> column_start, column_count;
+  const void* row_index_source = nullptr;
+  void forget_pattern() { row_index_source = nullptr; }
 };
 
 // True when `factor` (a `const cholmod_factor*`) is one solve_simplicial_ldlt can apply: numeric,
