@@ -237,6 +237,39 @@ bool is_simplicial_ldlt(const void* factor) {
          L->xtype == CHOLMOD_REAL && L->dtype == CHOLMOD_DOUBLE && L->x && L->p && L->i && L->nz;
 }
 
+bool solve_simplicial_ldlt_rows(const void* factor, double* B, int ncols, int width,
+                                SimplicialSolveWorkspace& workspace) {
+  if (!is_simplicial_ldlt(factor) || ncols < 1 || ncols > 8 || width != (ncols <= 4 ? 4 : 8)) return false;
+  const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
+  const int n = static_cast<int>(L.n);
+  const std::size_t size = static_cast<std::size_t>(n) * width;
+  if (workspace.rows.size() < size) workspace.rows.resize(size);
+  // the layout of `rows` changes (solve_simplicial_ldlt clears its unused lanes again)
+  workspace.row_width = 0;
+  workspace.used_columns = 0;
+  double* X = workspace.rows.data();
+  // (P b)_k = b_{Perm[k]}: whole rows, the lanes past ncols cleared
+  const int* perm = L.ordering != CHOLMOD_NATURAL ? static_cast<const int*>(L.Perm) : nullptr;
+  for (int k = 0; k < n; ++k) {
+    const double* from = B + static_cast<std::ptrdiff_t>(perm ? perm[k] : k) * width;
+    double* to = X + static_cast<std::ptrdiff_t>(k) * width;
+    for (int c = 0; c < width; ++c) to[c] = c < ncols ? from[c] : 0.0;
+  }
+  if (workspace.kernel == SimplicialKernel::automatic)
+    workspace.kernel = has_avx2() ? SimplicialKernel::avx2 : SimplicialKernel::generic;
+  const bool avx2 = workspace.kernel == SimplicialKernel::avx2;
+  if (const std::uint16_t* Li16 = get_row_index16(L, workspace))
+    avx2 ? solve_avx2(L, Li16, X, ncols) : solve_generic(L, Li16, X, ncols);
+  else
+    avx2 ? solve_avx2(L, static_cast<const int*>(L.i), X, ncols) : solve_generic(L, static_cast<const int*>(L.i), X, ncols);
+  for (int k = 0; k < n; ++k) {
+    const double* from = X + static_cast<std::ptrdiff_t>(k) * width;
+    double* to = B + static_cast<std::ptrdiff_t>(perm ? perm[k] : k) * width;
+    for (int c = 0; c < ncols; ++c) to[c] = from[c];
+  }
+  return true;
+}
+
 bool solve_simplicial_ldlt(const void* factor, double* B, int ncols, int ld,
                            SimplicialSolveWorkspace& workspace) {
   if (!is_simplicial_ldlt(factor) || ncols < 1 || ncols > 8) return false;

@@ -194,6 +194,33 @@ TEST_F(SimplicialSolve, ReusedWorkspaceFollowsPatternChanges) {
   cholmod_free_sparse(&C, &c_);
 }
 
+// Right-hand sides stored by rows (4 or 8 doubles per unknown, the unused lanes left alone): the
+// same bits as the column solve, and so as CHOLMOD's, for 1 to 8 columns; wrong widths refused.
+TEST_F(SimplicialSolve, RowStorageGivesTheColumnSolvesBits) {
+  SimplicialSolveWorkspace rows_ws, columns_ws;
+  for (int ncols = 1; ncols <= 8; ++ncols) {
+    const int width = ncols <= 4 ? 4 : 8;
+    const std::vector<double> B = make_rhs(ncols, 90u + ncols);
+    std::vector<double> columns = B;
+    ASSERT_TRUE(solve_simplicial_ldlt(L_, columns.data(), ncols, A_.n, columns_ws));
+    std::vector<double> rows(static_cast<std::size_t>(A_.n) * width, -3.0);
+    for (int k = 0; k < A_.n; ++k)
+      for (int c = 0; c < ncols; ++c) rows[static_cast<std::size_t>(k) * width + c] = B[static_cast<std::size_t>(c) * A_.n + k];
+    ASSERT_TRUE(solve_simplicial_ldlt_rows(L_, rows.data(), ncols, width, rows_ws));
+    for (int k = 0; k < A_.n; ++k) {
+      for (int c = 0; c < ncols; ++c) {
+        const double a = rows[static_cast<std::size_t>(k) * width + c], b = columns[static_cast<std::size_t>(c) * A_.n + k];
+        ASSERT_EQ(std::memcmp(&a, &b, sizeof(double)), 0) << ncols << " columns, row " << k << ", column " << c;
+      }
+      for (int c = ncols; c < width; ++c) ASSERT_EQ(rows[static_cast<std::size_t>(k) * width + c], -3.0);
+    }
+  }
+  std::vector<double> rows(static_cast<std::size_t>(A_.n) * 8, 1.0);
+  EXPECT_FALSE(solve_simplicial_ldlt_rows(L_, rows.data(), 3, 8, rows_ws));  // 3 columns need width 4
+  EXPECT_FALSE(solve_simplicial_ldlt_rows(L_, rows.data(), 6, 4, rows_ws));
+  EXPECT_FALSE(solve_simplicial_ldlt_rows(nullptr, rows.data(), 3, 4, rows_ws));
+}
+
 TEST_F(SimplicialSolve, LeadingDimensionLeavesTheGapUntouched) {
   const int ld = A_.n + 5, ncols = 3;
   const std::vector<double> packed = make_rhs(ncols, 5u);

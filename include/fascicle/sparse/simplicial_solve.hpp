@@ -45,4 +45,12 @@ bool is_simplicial_ldlt(const void* factor);
 bool solve_simplicial_ldlt(const void* factor, double* B, int ncols, int ld,
                            SimplicialSolveWorkspace& workspace);
 
+// The same solve with the right-hand sides stored by rows: B holds n rows of `width` doubles
+// (width 4 for ncols <= 4, 8 for ncols <= 8), row i = the ncols values of unknown i followed by
+// unused lanes, which are left as they are. The same bits as solve_simplicial_ldlt; saves its
+// column-to-row copies when the caller assembles rows anyway. False (B untouched) when the factor
+// or the sizes do not fit, as there.
+bool solve_simplicial_ldlt_rows(const void* factor, double* B, int ncols, int width,
+                                SimplicialSolveWorkspace& workspace);
+
 }  // namespace fascicle
