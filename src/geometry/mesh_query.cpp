@@ -179,6 +179,12 @@ struct MeshQuery::Bvh {
   RTCDevice device = nullptr;
   RTCScene scene = nullptr;
   RTCGeometry geometry = nullptr;  // the clusters (owned by the scene)
+  // Rays through the compact tree (trace_compact) instead of the Embree scene: set by the first
+  // update_vertices of a compact-tree query of at most kRaysOnCompactClusters clusters, whose
+  // Embree scene is then no longer refitted. A static query, or a large one, keeps Embree's
+  // traversal (faster on big meshes); the answers are the same either way.
+  static constexpr unsigned kRaysOnCompactClusters = 1024;
+  bool rays_on_compact = false;
   bool refittable = false;         // two-level scene whose commits refit (see build_scene)
   // A refit's Embree commit waits for the first query that traverses the Embree scene (rays,
   // inside tests; closest points with embree_clusters): the solvers refit surfaces several times
@@ -774,6 +780,7 @@ void intersect_slot(const RTCIntersectFunctionNArguments* args, RayState* r, uns
   }
   if (r->first.triangle >= 0 && hit->t == r->first.t && hit->triangle > r->first.triangle) return;
   r->first = *hit;
+  if (args == nullptr) return;  // the compact tree's traversal (trace_compact) prunes by r->first
   // Shrink Embree's far distance (rounded up, padded) so farther boxes are culled.
   auto* rayhit = reinterpret_cast<RTCRayHit*>(args->rayhit);
   const float tf = round_up(hit->t * (1.0 + 1e-6) + r->bvh->pad / r->direction.norm());
@@ -782,20 +789,20 @@ void intersect_slot(const RTCIntersectFunctionNArguments* args, RayState* r, uns
   rayhit->hit.primID = args->primID;
 }
 
-void intersect_callback(const RTCIntersectFunctionNArguments* args) {
-  if (args->N != 1 || args->valid[0] == 0) return;
-  auto* r = reinterpret_cast<RayState*>(args->context);
+// The exact tests of one cluster's triangles against ray r (Embree's callback, args set; or the
+// compact tree's traversal, args null).
+void visit_ray_cluster(RayState* r, unsigned cluster, const RTCIntersectFunctionNArguments* args) {
   constexpr unsigned K = MeshQuery::Bvh::kCluster;
-  const unsigned first = r->bvh->slot_begin(args->primID);
-  const unsigned count = r->bvh->slot_end(args->primID) - first;
+  const unsigned first = r->bvh->slot_begin(cluster);
+  const unsigned count = r->bvh->slot_end(cluster) - first;
   // Exact (double) tests only for the triangles whose bounding sphere the line meets: the others
   // can neither be hit nor grazed.
-  const double* anchor = r->bvh->anchors.data() + 3 * static_cast<std::size_t>(args->primID);
+  const double* anchor = r->bvh->anchors.data() + 3 * static_cast<std::size_t>(cluster);
   const Vec3 oa(r->origin.x() - anchor[0], r->origin.y() - anchor[1], r->origin.z() - anchor[2]);
   const double margin =
       r->margin + MeshQuery::Bvh::kFloatMargin * (oa.norm() + 2.0 * r->bvh->cluster_extent);
   unsigned mask = find_ray_candidates(
-      r->bvh->soa.data() + MeshQuery::Bvh::kSoaRows * K * args->primID, static_cast<float>(oa.x()),
+      r->bvh->soa.data() + MeshQuery::Bvh::kSoaRows * K * cluster, static_cast<float>(oa.x()),
       static_cast<float>(oa.y()), static_cast<float>(oa.z()), r->unit_direction[0],
       r->unit_direction[1], r->unit_direction[2], to_float_or_infinity(margin));
   if (count < K) mask &= (1u << count) - 1u;
@@ -803,6 +810,65 @@ void intersect_callback(const RTCIntersectFunctionNArguments* args) {
     const auto k = static_cast<unsigned>(std::countr_zero(mask));
     mask &= mask - 1u;
     intersect_slot(args, r, first + k);
+  }
+}
+
+void intersect_callback(const RTCIntersectFunctionNArguments* args) {
+  if (args->N != 1 || args->valid[0] == 0) return;
+  visit_ray_cluster(reinterpret_cast<RayState*>(args->context), args->primID, args);
+}
+
+// A ray through the compact tree (MeshQueryOptions::ClosestPointTree::compact), without Embree:
+// depth-first over the 4-wide nodes, entering every child whose box, widened by 1e-7 of the
+// mesh's scale, the ray's segment [t_min, t_max] meets (a slab test in double), and testing the
+// clusters reached as Embree's callback does. Every cluster holding a triangle that the ray hits
+// or grazes is reached (its box holds the triangle; the widening covers the slab test's rounding
+// many times over), and a cluster the ray misses adds neither a hit nor a graze, so the crossings,
+// the hits and the first hit (ties to the lower triangle index) are those of the Embree scene.
+// Used for small deforming surfaces (Bvh::rays_on_compact), whose refits then need no Embree work.
+void trace_compact(const MeshQuery::Bvh& bvh, RayState& r) {
+  const Vec3& o = r.origin;
+  const Vec3& d = r.direction;
+  const double pad = 1e-7 * bvh.scale;
+  std::array<double, 3> inv{};
+  for (int k = 0; k < 3; ++k) inv[static_cast<std::size_t>(k)] = d[k] != 0.0 ? 1.0 / d[k] : 0.0;
+  // Whether the ray's segment meets the box [lo - pad, hi + pad] (axis by axis; a direction
+  // component of 0 needs the origin within the slab).
+  const auto meets = [&](const MeshQuery::Bvh::Node4& node, unsigned k) {
+    const float lo[3] = {node.lo_x[k], node.lo_y[k], node.lo_z[k]};
+    const float hi[3] = {node.hi_x[k], node.hi_y[k], node.hi_z[k]};
+    double enter = r.t_min, leave = r.t_max;
+    if (r.mode == RayMode::first && r.first.triangle >= 0) leave = std::min(leave, r.first.t);
+    const double slack = 1e-9 * (std::abs(enter) + (std::isfinite(leave) ? std::abs(leave) : 0.0)) + 1e-300;
+    enter -= slack;
+    leave += slack;
+    for (int a = 0; a < 3; ++a) {
+      const double l = lo[a] - pad, h = hi[a] + pad;
+      if (d[a] == 0.0) {
+        if (o[a] < l || o[a] > h) return false;
+        continue;
+      }
+      double t0 = (l - o[a]) * inv[static_cast<std::size_t>(a)], t1 = (h - o[a]) * inv[static_cast<std::size_t>(a)];
+      if (t0 > t1) std::swap(t0, t1);
+      const double widen = 1e-9 * (std::abs(t0) + std::abs(t1));
+      enter = std::max(enter, t0 - widen);
+      leave = std::min(leave, t1 + widen);
+      if (!(enter <= leave)) return false;
+    }
+    return true;
+  };
+  std::int32_t stack[4 * MeshQuery::Bvh::kMaxTreeDepth + 4];
+  int top = 0;
+  stack[top++] = bvh.root;
+  while (top > 0) {
+    const std::int32_t item = stack[--top];
+    if (item < 0) {
+      visit_ray_cluster(&r, static_cast<unsigned>(~item), nullptr);
+      continue;
+    }
+    const MeshQuery::Bvh::Node4& node = bvh.nodes[static_cast<std::size_t>(item)];
+    for (unsigned k = 0; k < 4; ++k)
+      if ((node.valid & (1u << k)) != 0 && meets(node, k)) stack[top++] = node.child[k];
   }
 }
 
@@ -824,6 +890,10 @@ void commit_pending_refit(const MeshQuery::Bvh& bvh) {
 
 // Runs one ray through the scene with the given mode.
 void trace(const MeshQuery::Bvh& bvh, RayState& state) {
+  if (bvh.rays_on_compact) {
+    trace_compact(bvh, state);
+    return;
+  }
   commit_pending_refit(bvh);
   rtcInitIntersectContext(&state.context);
   RTCRayHit rh;
@@ -1628,6 +1698,9 @@ void MeshQuery::update_vertices(const Points3& V) {
   update_welded_positions(bvh, mesh_);
   if (!grid_is_current(bvh)) build_start_grid(bvh);
   if (bvh.compact) refit_compact_tree(bvh);
+  // a small deforming surface: rays through the compact tree from now on, no Embree work
+  if (bvh.compact && bvh.num_clusters() <= Bvh::kRaysOnCompactClusters) bvh.rays_on_compact = true;
+  if (bvh.rays_on_compact) return;
   if (!bvh.refittable) {
     build_scene(bvh, true);  // first update: one build of the refittable tree
     return;
