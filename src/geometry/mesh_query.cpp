@@ -1030,12 +1030,17 @@ void fill_slots(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
   constexpr unsigned K = MeshQuery::Bvh::kCluster;
   const std::size_t num_clusters = bvh.num_clusters();
   bvh.corners.resize(9 * static_cast<std::size_t>(bvh.num_slots));
-  bvh.soa.assign(MeshQuery::Bvh::kSoaRows * K * num_clusters, 0.0f);
+  // The lanes past a cluster's count stay 0 (they are never written): cleared on a new layout only.
+  if (bvh.soa.size() != MeshQuery::Bvh::kSoaRows * K * num_clusters)
+    bvh.soa.assign(MeshQuery::Bvh::kSoaRows * K * num_clusters, 0.0f);
   bvh.anchors.resize(3 * num_clusters);
-  // Per cluster: an upper bound of max(|centre - anchor| + radius) (max |rel| + max radius).
-  std::vector<double> extent(num_clusters, 0.0);
+  // The largest over the clusters of an upper bound of max(|centre - anchor| + radius) (max |rel|
+  // + max radius).
+  double max_extent = 0.0;
   // Serial on purpose: a parallel_for here made the build ~20 % dearer in CPU time (TBB's
-  // workers spinning), and callers refit several meshes in parallel anyway.
+  // workers spinning), and callers refit several meshes in parallel anyway. The square roots
+  // and divisions of a cluster's triangles run in a loop of their own, so they overlap instead of
+  // waiting on each other (the same operations on the same values as one loop).
   for (std::size_t cluster = 0; cluster < num_clusters; ++cluster) {
     const std::size_t first = bvh.cluster_begin[cluster];
     const std::size_t count = bvh.cluster_begin[cluster + 1] - first;
@@ -1055,34 +1060,44 @@ void fill_slots(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
     anchor /= static_cast<double>(count);
     for (int j = 0; j < 3; ++j) bvh.anchors[3 * cluster + static_cast<std::size_t>(j)] = anchor[j];
     float* block = bvh.soa.data() + MeshQuery::Bvh::kSoaRows * K * cluster;
-    double max_rel2 = 0.0, max_r = 0.0;
+    // per triangle: the squared radius of its disc about its centre, its normal n, |n|^2 and
+    // the threshold below which the normal is not trusted
+    std::array<double, K> r2, n_len2, trusted;
+    std::array<Vec3, K> normal;
     for (std::size_t k = 0; k < count; ++k) {
       const auto slot = static_cast<unsigned>(first + k);
       const Vec3 a = bvh.corner(slot, 0), b = bvh.corner(slot, 1), cc = bvh.corner(slot, 2);
       const Vec3& centre = centres[k];
-      const double r = std::sqrt(std::max({(a - centre).squaredNorm(), (b - centre).squaredNorm(),
-                                           (cc - centre).squaredNorm()}));
+      r2[k] = std::max({(a - centre).squaredNorm(), (b - centre).squaredNorm(), (cc - centre).squaredNorm()});
       // The computed normal's direction error is about 1e-16 / sin(angle at a): trust it only when
       // that angle is not tiny (error < 1e-12), otherwise fall back to the sphere bound (n = 0).
       const Vec3 ab = b - a, ac = cc - a;
-      const Vec3 n = ab.cross(ac);
-      const double n_len2 = n.squaredNorm();
-      const Vec3 unit = n_len2 > 1e-8 * ab.squaredNorm() * ac.squaredNorm() ? Vec3(n / std::sqrt(n_len2))
-                                                                           : Vec3::Zero();
-      const Vec3 rel = centre - anchor;
+      normal[k] = ab.cross(ac);
+      n_len2[k] = normal[k].squaredNorm();
+      trusted[k] = n_len2[k] > 1e-8 * ab.squaredNorm() * ac.squaredNorm() ? 1.0 : 0.0;
+    }
+    std::array<double, K> r, n_len;
+    for (std::size_t k = 0; k < count; ++k) {
+      r[k] = std::sqrt(r2[k]);
+      n_len[k] = std::sqrt(n_len2[k]);
+    }
+    double max_rel2 = 0.0, max_r = 0.0;
+    for (std::size_t k = 0; k < count; ++k) {
+      const Vec3 unit = trusted[k] != 0.0 ? Vec3(normal[k] / n_len[k]) : Vec3::Zero();
+      const Vec3 rel = centres[k] - anchor;
       block[0 * K + k] = static_cast<float>(rel.x());
       block[1 * K + k] = static_cast<float>(rel.y());
       block[2 * K + k] = static_cast<float>(rel.z());
       block[3 * K + k] = static_cast<float>(unit.x());
       block[4 * K + k] = static_cast<float>(unit.y());
       block[5 * K + k] = static_cast<float>(unit.z());
-      block[6 * K + k] = round_up(r);  // rounded up: the disc still holds the triangle
+      block[6 * K + k] = round_up(r[k]);  // rounded up: the disc still holds the triangle
       max_rel2 = std::max(max_rel2, rel.squaredNorm());
-      max_r = std::max(max_r, r);
+      max_r = std::max(max_r, r[k]);
     }
-    extent[cluster] = std::sqrt(max_rel2) + max_r;
+    max_extent = std::max(max_extent, std::sqrt(max_rel2) + max_r);
   }
-  bvh.cluster_extent = num_clusters > 0 ? *std::max_element(extent.begin(), extent.end()) : 0.0;
+  bvh.cluster_extent = max_extent;
   bvh.box_lo = mesh.V.colwise().minCoeff().transpose();
   bvh.box_hi = mesh.V.colwise().maxCoeff().transpose();
   const double scale = std::max(bvh.box_lo.cwiseAbs().maxCoeff(), bvh.box_hi.cwiseAbs().maxCoeff()) +
