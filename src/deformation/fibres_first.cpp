@@ -156,6 +156,18 @@ class LdlFactor {
     B.leftCols(ncols) = columns;
   }
 
+  // Per unknown: its row in the factor's order (valid once analysed).
+  const std::vector<int>& get_positions() const { return position_; }
+
+  // solve_rows for B whose row get_positions()[j] holds unknown j (the factor's order), in place.
+  void solve_factor_rows(RowRhs& B, int ncols) {
+    if (solve_simplicial_ldlt_in_factor_order(L_, B.data(), ncols, static_cast<int>(B.cols()), own_solve_)) return;
+    RowRhs natural(B.rows(), B.cols());
+    for (Eigen::Index j = 0; j < B.rows(); ++j) natural.row(j) = B.row(position_[j]);
+    solve_rows(natural, ncols);
+    for (Eigen::Index j = 0; j < B.rows(); ++j) B.row(position_[j]) = natural.row(j);
+  }
+
   // Solves K X = B in place (B: n x any columns). Up to eight columns go through
   // fascicle/sparse's simplicial kernel in one pass over the factor (the same bits as CHOLMOD's
   // solve, which takes four columns per pass); more through cholmod_solve2, whose solution and
@@ -276,16 +288,18 @@ void calc_generic(const LocalSpring* sp, int count, const double* sx, const doub
   calc_body<SqrtScalar>(sp, count, sx, sy, sz, rest, d);
 }
 // Adds k d (a spring's term of the right-hand side) to its ends' rows of B (rows of `width`
-// doubles, x y z in lanes 0-2): +k d to a's row, -k d to b's; a fixed end's position moves to
+// doubles, x y z in lanes 0-2; free particle j in row position[j]): +k d to a's row, -k d to b's; a fixed end's position moves to
 // the other end's term (a's row gets k (d + x_b), b's row k (x_a - d)). Per lane these are the
 // scalar code's operations (d + x, then the product, then the sum; -d is an exact negation), so
 // the rows get the bits of three separate columns; lane 3 gets +0.
 template <class Sqrt>
 [[gnu::always_inline]] inline void add_to_rows_body(const LocalSpring* sp, int count, const double* d,
                                                     const double* sx, const double* sy, const double* sz,
-                                                    double* rows, int width) {
+                                                    const int* position, double* rows, int width) {
   using V4u = double __attribute__((vector_size(32), aligned(8), may_alias));
-  auto row = [rows, width](int j) { return reinterpret_cast<V4u*>(rows + static_cast<std::ptrdiff_t>(j) * width); };
+  auto row = [rows, width, position](int j) {
+    return reinterpret_cast<V4u*>(rows + static_cast<std::ptrdiff_t>(position[j]) * width);
+  };
   for (int s = 0; s < count; ++s) {
     const LocalSpring& q = sp[s];
     const V4d v = {d[3 * s], d[3 * s + 1], d[3 * s + 2], 0.0};
@@ -302,12 +316,12 @@ template <class Sqrt>
 }
 __attribute__((target("avx2"))) void add_to_rows_avx2(const LocalSpring* sp, int count, const double* d,
                                                       const double* sx, const double* sy, const double* sz,
-                                                      double* rows, int width) {
-  add_to_rows_body<SqrtAvx>(sp, count, d, sx, sy, sz, rows, width);
+                                                      const int* position, double* rows, int width) {
+  add_to_rows_body<SqrtAvx>(sp, count, d, sx, sy, sz, position, rows, width);
 }
 void add_to_rows_generic(const LocalSpring* sp, int count, const double* d, const double* sx,
-                         const double* sy, const double* sz, double* rows, int width) {
-  add_to_rows_body<SqrtScalar>(sp, count, d, sx, sy, sz, rows, width);
+                         const double* sy, const double* sz, const int* position, double* rows, int width) {
+  add_to_rows_body<SqrtScalar>(sp, count, d, sx, sy, sz, position, rows, width);
 }
 
 void calc(const LocalSpring* sp, int count, const double* sx, const double* sy, const double* sz,
@@ -319,12 +333,12 @@ void calc(const LocalSpring* sp, int count, const double* sx, const double* sy, 
   (avx2 ? calc_avx2 : calc_generic)(sp, count, sx, sy, sz, rest, d);
 }
 void add_to_rows(const LocalSpring* sp, int count, const double* d, const double* sx, const double* sy,
-                 const double* sz, double* rows, int width) {
+                 const double* sz, const int* position, double* rows, int width) {
   static const bool avx2 = [] {
     __builtin_cpu_init();
     return __builtin_cpu_supports("avx2") != 0;
   }();
-  (avx2 ? add_to_rows_avx2 : add_to_rows_generic)(sp, count, d, sx, sy, sz, rows, width);
+  (avx2 ? add_to_rows_avx2 : add_to_rows_generic)(sp, count, d, sx, sy, sz, position, rows, width);
 }
 }  // namespace spring_vectors
 
@@ -1324,8 +1338,10 @@ double relax_muscle(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
   const bool volume = o.hold_volume && m.surface_triangles.rows() > 0;
   const bool fresh = volume && (first_iteration || sys.volume_direction.rows() != m.num_particles);
   if (first_iteration) sys.anderson.restart();
-  // B by rows (RowRhs): lanes 0-2 the spring and contact terms, lanes 3-5 the volume gradient
+  // B by rows (RowRhs): lanes 0-2 the spring and contact terms, lanes 3-5 the volume gradient,
   const int ncols = fresh ? 6 : 3, width = fresh ? 8 : 4;
+  // row position[j] holds free particle j: the factor's order, so the solve needs no copies
+  const int* position = sys.factor.get_positions().data();
   RowRhs B = RowRhs::Zero(nf, width);
   const double* sx = snapshot.col(0).data();
   const double* sy = snapshot.col(1).data();
@@ -1342,29 +1358,29 @@ double relax_muscle(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
   for (int s0 = 0; s0 < num_springs; s0 += block) {
     const int count = std::min(block, num_springs - s0);
     spring_vectors::calc(sys.springs.data() + s0, count, sx, sy, sz, model.rest, d);
-    spring_vectors::add_to_rows(sys.springs.data() + s0, count, d, sx, sy, sz, rows, width);
+    spring_vectors::add_to_rows(sys.springs.data() + s0, count, d, sx, sy, sz, position, rows, width);
   }
   const double mass_term = m.particle_mass_kg * ctx.mass_scale;
   for (int j = 0; j < nf; ++j) {
     const int p = m.free[j];
-    if (ctx.inertial) B.row(j).head<3>() += mass_term * ctx.inertial->row(p);
+    if (ctx.inertial) B.row(position[j]).head<3>() += mass_term * ctx.inertial->row(p);
     if (sys.factored_weight[j] == 0.0) continue;
     const Vec3 target = ws.bone_contacts.has(p) ? ws.bone_contacts.calc_target(p, motions)
                                                 : Vec3(ws.pair_target.row(p).transpose() / ws.pair_count[p]);
-    B.row(j).head<3>() += sys.factored_weight[j] * target.transpose();
+    B.row(position[j]).head<3>() += sys.factored_weight[j] * target.transpose();
   }
   // volume gradient at the current iterate (first iteration of a round only)
   if (fresh) {
     const Points3 g = calc_particle_volume_gradient(m, sys.surface_map, snapshot.middleRows(base, m.num_particles));
-    for (int j = 0; j < nf; ++j) B.row(j).segment<3>(3) = g.row(m.free[j] - base);
+    for (int j = 0; j < nf; ++j) B.row(position[j]).segment<3>(3) = g.row(m.free[j] - base);
   }
   // global step, then the volume: x = x_u + t Y with Y = -K^-1 g, t the root of V(t) = V0
-  sys.factor.solve_rows(B, ncols);
+  sys.factor.solve_factor_rows(B, ncols);
   Points3 xm = snapshot.middleRows(base, m.num_particles);
-  for (int j = 0; j < nf; ++j) xm.row(m.free[j] - base) = B.row(j).head<3>();
+  for (int j = 0; j < nf; ++j) xm.row(m.free[j] - base) = B.row(position[j]).head<3>();
   if (fresh) {
     sys.volume_direction = Points3::Zero(m.num_particles, 3);
-    for (int j = 0; j < nf; ++j) sys.volume_direction.row(m.free[j] - base) = -B.row(j).segment<3>(3);
+    for (int j = 0; j < nf; ++j) sys.volume_direction.row(m.free[j] - base) = -B.row(position[j]).segment<3>(3);
     sys.volume_direction_surface = sys.surface_map * sys.volume_direction;
   }
   if (volume) volume_failed = !std::isfinite(hold_volume_along(m, sys.surface_map, xm, sys.volume_direction, sys.volume_direction_surface));

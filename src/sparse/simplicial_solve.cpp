@@ -237,6 +237,20 @@ bool is_simplicial_ldlt(const void* factor) {
          L->xtype == CHOLMOD_REAL && L->dtype == CHOLMOD_DOUBLE && L->x && L->p && L->i && L->nz;
 }
 
+bool solve_simplicial_ldlt_in_factor_order(const void* factor, double* X, int ncols, int width,
+                                           SimplicialSolveWorkspace& workspace) {
+  if (!is_simplicial_ldlt(factor) || ncols < 1 || ncols > 8 || width != (ncols <= 4 ? 4 : 8)) return false;
+  const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
+  if (workspace.kernel == SimplicialKernel::automatic)
+    workspace.kernel = has_avx2() ? SimplicialKernel::avx2 : SimplicialKernel::generic;
+  const bool avx2 = workspace.kernel == SimplicialKernel::avx2;
+  if (const std::uint16_t* Li16 = get_row_index16(L, workspace))
+    avx2 ? solve_avx2(L, Li16, X, ncols) : solve_generic(L, Li16, X, ncols);
+  else
+    avx2 ? solve_avx2(L, static_cast<const int*>(L.i), X, ncols) : solve_generic(L, static_cast<const int*>(L.i), X, ncols);
+  return true;
+}
+
 bool solve_simplicial_ldlt_rows(const void* factor, double* B, int ncols, int width,
                                 SimplicialSolveWorkspace& workspace) {
   if (!is_simplicial_ldlt(factor) || ncols < 1 || ncols > 8 || width != (ncols <= 4 ? 4 : 8)) return false;

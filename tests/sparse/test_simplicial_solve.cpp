@@ -195,7 +195,8 @@ TEST_F(SimplicialSolve, ReusedWorkspaceFollowsPatternChanges) {
 }
 
 // Right-hand sides stored by rows (4 or 8 doubles per unknown, the unused lanes left alone): the
-// same bits as the column solve, and so as CHOLMOD's, for 1 to 8 columns; wrong widths refused.
+// same bits as the column solve, and so as CHOLMOD's, for 1 to 8 columns; rows already in the
+// factor's order too; wrong widths refused.
 TEST_F(SimplicialSolve, RowStorageGivesTheColumnSolvesBits) {
   SimplicialSolveWorkspace rows_ws, columns_ws;
   for (int ncols = 1; ncols <= 8; ++ncols) {
@@ -215,7 +216,27 @@ TEST_F(SimplicialSolve, RowStorageGivesTheColumnSolvesBits) {
       for (int c = ncols; c < width; ++c) ASSERT_EQ(rows[static_cast<std::size_t>(k) * width + c], -3.0);
     }
   }
+  // rows already in the factor's order (row k: unknown Perm[k]), solved in place: the same bits
+  const int* perm = static_cast<const int*>(L_->Perm);
+  for (int ncols : {3, 6}) {
+    const int width = ncols <= 4 ? 4 : 8;
+    const std::vector<double> B = make_rhs(ncols, 120u + ncols);
+    std::vector<double> natural(static_cast<std::size_t>(A_.n) * width, 0.0), permuted = natural;
+    for (int k = 0; k < A_.n; ++k)
+      for (int c = 0; c < ncols; ++c) {
+        natural[static_cast<std::size_t>(k) * width + c] = B[static_cast<std::size_t>(c) * A_.n + k];
+        permuted[static_cast<std::size_t>(k) * width + c] = B[static_cast<std::size_t>(c) * A_.n + perm[k]];
+      }
+    ASSERT_TRUE(solve_simplicial_ldlt_rows(L_, natural.data(), ncols, width, rows_ws));
+    ASSERT_TRUE(solve_simplicial_ldlt_in_factor_order(L_, permuted.data(), ncols, width, columns_ws));
+    for (int k = 0; k < A_.n; ++k)
+      for (int c = 0; c < ncols; ++c)
+        ASSERT_EQ(std::memcmp(&permuted[static_cast<std::size_t>(k) * width + c],
+                              &natural[static_cast<std::size_t>(perm[k]) * width + c], sizeof(double)), 0)
+            << ncols << " columns, row " << k;
+  }
   std::vector<double> rows(static_cast<std::size_t>(A_.n) * 8, 1.0);
+  EXPECT_FALSE(solve_simplicial_ldlt_in_factor_order(L_, rows.data(), 6, 4, rows_ws));
   EXPECT_FALSE(solve_simplicial_ldlt_rows(L_, rows.data(), 3, 8, rows_ws));  // 3 columns need width 4
   EXPECT_FALSE(solve_simplicial_ldlt_rows(L_, rows.data(), 6, 4, rows_ws));
   EXPECT_FALSE(solve_simplicial_ldlt_rows(nullptr, rows.data(), 3, 4, rows_ws));

@@ -53,4 +53,10 @@ bool solve_simplicial_ldlt(const void* factor, double* B, int ncols, int ld,
 bool solve_simplicial_ldlt_rows(const void* factor, double* B, int ncols, int width,
                                 SimplicialSolveWorkspace& workspace);
 
+// The same solve on rows already in the factor's order (row k: unknown Perm[k]; width and
+// columns as in solve_simplicial_ldlt_rows), in place and without copies: x in the factor's
+// order, P x. Every lane is solved on its own, so the unused lanes do not touch the used ones.
+bool solve_simplicial_ldlt_in_factor_order(const void* factor, double* X, int ncols, int width,
+                                           SimplicialSolveWorkspace& workspace);
+
 }  // namespace fascicle
