@@ -558,8 +558,9 @@ std::unique_ptr<FibresFirstSolver::Workspace> make_workspace(const FibresFirstMo
     }
     for (int s = model_.first_spring[mi]; s < model_.first_spring[mi + 1]; ++s) {
       const Spring& sp = model_.springs[s];
-      sys.springs.push_back({m.free_index[sp.a - m.first_particle], m.free_index[sp.b - m.first_particle],
-                             sp.a, sp.b, sp.stiffness, sp.rest_length_m});
+      const int a = m.free_index[sp.a - m.first_particle], b = m.free_index[sp.b - m.first_particle];
+      if (a < 0 && b < 0) continue;  // between two prescribed particles: adds nothing to any row
+      sys.springs.push_back({a, b, sp.a, sp.b, sp.stiffness, sp.rest_length_m});
     }
     sys.K_springs.resize(nf, nf);
     sys.K_springs.setFromTriplets(t.begin(), t.end());  // lower triangle only
@@ -1816,9 +1817,21 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
     const bool stall_rule = ws.surfaces.enabled && o.stall_iterations > 0;
     std::vector<double> best_step(nm, std::numeric_limits<double>::infinity());
     std::vector<int> since_best(nm, 0);
+    // the muscles whose rows of x the last iteration wrote: the snapshot copies and the finiteness
+    // check cover all rows at a round's first iteration and only those rows after it (the other
+    // rows are unchanged since)
+    std::vector<char> ran(nm, 1);
+    auto rows_of = [&](Points3& m, int mi) {
+      return m.middleRows(model.muscles[mi].first_particle, model.muscles[mi].num_particles);
+    };
     for (int it = 0; it < o.max_iterations; ++it) {
       ++info_.iterations;
-      snapshot = x;
+      if (it == 0 || snapshot.rows() != x.rows()) {
+        snapshot = x;
+      } else {
+        for (int mi = 0; mi < nm; ++mi)
+          if (ran[mi]) rows_of(snapshot, mi) = rows_of(x, mi);
+      }
       set_pair_targets(model, ws, snapshot);
       add_surface_particle_targets(model, ws, snapshot);
       parallel_for(static_cast<std::size_t>(nm), [&](std::size_t mi) {
@@ -1832,7 +1845,14 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
         if (active[mi] || !round_wake) first[mi] = 0;
       }
       info_.residual = *std::max_element(steps.begin(), steps.end());
-      if (!x.allFinite() || !std::isfinite(info_.residual)) {
+      ran = active;
+      bool finite = true;
+      if (it == 0) {
+        finite = x.allFinite();
+      } else {
+        for (int mi = 0; mi < nm && finite; ++mi) finite = !active[mi] || rows_of(x, mi).allFinite();
+      }
+      if (!finite || !std::isfinite(info_.residual)) {
         int bad = 0;
         for (int mi = 0; mi < nm; ++mi)
           if (!std::isfinite(steps[mi]) ||
