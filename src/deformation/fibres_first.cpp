@@ -71,6 +71,11 @@ double hold_volume_along(const FibreBundle& m, const SurfaceMap& W, Points3& xm,
 
 }  // namespace
 
+// Right-hand sides of the global step stored by rows: per free particle its x, y, z (and the
+// volume gradient's three components on a round's first iteration) side by side, padded to 4 or
+// 8 doubles, the layout of the simplicial solve's rows (sparse/simplicial_solve.hpp).
+using RowRhs = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
 // A sparse LDL^T factor (CHOLMOD simplicial, AMD ordering) that can be modified by rank-k
 // updates/downdates (Davis and Hager 1999, cholmod_updown): adding or removing contact weights on
 // the diagonal costs a small fraction of a new factorisation. One CHOLMOD workspace per factor,
@@ -116,6 +121,7 @@ class LdlFactor {
       for (Eigen::Index r = 0; r < K.rows(); ++r) position_[perm[r]] = static_cast<int>(r);
     }
     const bool ok = cholmod_factorize(&A, L_, &c_) && c_.status == CHOLMOD_OK && L_->minor == L_->n;
+    own_solve_.forget_pattern();  // the solve's copy of L's row indices is made again
     return ok;
   }
 
@@ -137,6 +143,29 @@ class LdlFactor {
     const bool ok = cholmod_updown(update ? 1 : 0, C, L_, &c_) && c_.status == CHOLMOD_OK;
     cholmod_free_sparse(&C, &c_);
     return ok;
+  }
+
+  // Solves K X = B in place for B stored by rows (RowRhs: n rows of 4 doubles for up to four
+  // columns, 8 for up to eight; `ncols` of them used): through the simplicial kernel, or CHOLMOD's
+  // solve on a column copy when the kernel cannot apply it. The same bits as solve() on the
+  // columns.
+  void solve_rows(RowRhs& B, int ncols) {
+    if (solve_simplicial_ldlt_rows(L_, B.data(), ncols, static_cast<int>(B.cols()), own_solve_)) return;
+    Eigen::MatrixXd columns = B.leftCols(ncols);
+    solve(columns);
+    B.leftCols(ncols) = columns;
+  }
+
+  // Per unknown: its row in the factor's order (valid once analysed).
+  const std::vector<int>& get_positions() const { return position_; }
+
+  // solve_rows for B whose row get_positions()[j] holds unknown j (the factor's order), in place.
+  void solve_factor_rows(RowRhs& B, int ncols) {
+    if (solve_simplicial_ldlt_in_factor_order(L_, B.data(), ncols, static_cast<int>(B.cols()), own_solve_)) return;
+    RowRhs natural(B.rows(), B.cols());
+    for (Eigen::Index j = 0; j < B.rows(); ++j) natural.row(j) = B.row(position_[j]);
+    solve_rows(natural, ncols);
+    for (Eigen::Index j = 0; j < B.rows(); ++j) B.row(position_[j]) = natural.row(j);
   }
 
   // Solves K X = B in place (B: n x any columns). Up to eight columns go through
@@ -258,6 +287,43 @@ void calc_generic(const LocalSpring* sp, int count, const double* sx, const doub
                   const double* sz, const Points3& rest, double* d) {
   calc_body<SqrtScalar>(sp, count, sx, sy, sz, rest, d);
 }
+// Adds k d (a spring's term of the right-hand side) to its ends' rows of B (rows of `width`
+// doubles, x y z in lanes 0-2; free particle j in row position[j]): +k d to a's row, -k d to b's; a fixed end's position moves to
+// the other end's term (a's row gets k (d + x_b), b's row k (x_a - d)). Per lane these are the
+// scalar code's operations (d + x, then the product, then the sum; -d is an exact negation), so
+// the rows get the bits of three separate columns; lane 3 gets +0.
+template <class Sqrt>
+[[gnu::always_inline]] inline void add_to_rows_body(const LocalSpring* sp, int count, const double* d,
+                                                    const double* sx, const double* sy, const double* sz,
+                                                    const int* position, double* rows, int width) {
+  using V4u = double __attribute__((vector_size(32), aligned(8), may_alias));
+  auto row = [rows, width, position](int j) {
+    return reinterpret_cast<V4u*>(rows + static_cast<std::ptrdiff_t>(position[j]) * width);
+  };
+  for (int s = 0; s < count; ++s) {
+    const LocalSpring& q = sp[s];
+    const V4d v = {d[3 * s], d[3 * s + 1], d[3 * s + 2], 0.0};
+    const double k = q.k;
+    if (q.a >= 0) {
+      const V4d t = q.b >= 0 ? v : v + V4d{sx[q.pb], sy[q.pb], sz[q.pb], 0.0};
+      *row(q.a) = *row(q.a) + k * t;
+    }
+    if (q.b >= 0) {
+      const V4d t = q.a >= 0 ? -v : V4d{sx[q.pa], sy[q.pa], sz[q.pa], 0.0} - v;
+      *row(q.b) = *row(q.b) + k * t;
+    }
+  }
+}
+__attribute__((target("avx2"))) void add_to_rows_avx2(const LocalSpring* sp, int count, const double* d,
+                                                      const double* sx, const double* sy, const double* sz,
+                                                      const int* position, double* rows, int width) {
+  add_to_rows_body<SqrtAvx>(sp, count, d, sx, sy, sz, position, rows, width);
+}
+void add_to_rows_generic(const LocalSpring* sp, int count, const double* d, const double* sx,
+                         const double* sy, const double* sz, const int* position, double* rows, int width) {
+  add_to_rows_body<SqrtScalar>(sp, count, d, sx, sy, sz, position, rows, width);
+}
+
 void calc(const LocalSpring* sp, int count, const double* sx, const double* sy, const double* sz,
           const Points3& rest, double* d) {
   static const bool avx2 = [] {
@@ -265,6 +331,14 @@ void calc(const LocalSpring* sp, int count, const double* sx, const double* sy, 
     return __builtin_cpu_supports("avx2") != 0;
   }();
   (avx2 ? calc_avx2 : calc_generic)(sp, count, sx, sy, sz, rest, d);
+}
+void add_to_rows(const LocalSpring* sp, int count, const double* d, const double* sx, const double* sy,
+                 const double* sz, const int* position, double* rows, int width) {
+  static const bool avx2 = [] {
+    __builtin_cpu_init();
+    return __builtin_cpu_supports("avx2") != 0;
+  }();
+  (avx2 ? add_to_rows_avx2 : add_to_rows_generic)(sp, count, d, sx, sy, sz, position, rows, width);
 }
 }  // namespace spring_vectors
 
@@ -484,8 +558,9 @@ std::unique_ptr<FibresFirstSolver::Workspace> make_workspace(const FibresFirstMo
     }
     for (int s = model_.first_spring[mi]; s < model_.first_spring[mi + 1]; ++s) {
       const Spring& sp = model_.springs[s];
-      sys.springs.push_back({m.free_index[sp.a - m.first_particle], m.free_index[sp.b - m.first_particle],
-                             sp.a, sp.b, sp.stiffness, sp.rest_length_m});
+      const int a = m.free_index[sp.a - m.first_particle], b = m.free_index[sp.b - m.first_particle];
+      if (a < 0 && b < 0) continue;  // between two prescribed particles: adds nothing to any row
+      sys.springs.push_back({a, b, sp.a, sp.b, sp.stiffness, sp.rest_length_m});
     }
     sys.K_springs.resize(nf, nf);
     sys.K_springs.setFromTriplets(t.begin(), t.end());  // lower triangle only
@@ -1264,58 +1339,49 @@ double relax_muscle(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
   const bool volume = o.hold_volume && m.surface_triangles.rows() > 0;
   const bool fresh = volume && (first_iteration || sys.volume_direction.rows() != m.num_particles);
   if (first_iteration) sys.anderson.restart();
-  Eigen::MatrixXd B = Eigen::MatrixXd::Zero(nf, fresh ? 6 : 3);
-  double* bx = B.col(0).data();
-  double* by = B.col(1).data();
-  double* bz = B.col(2).data();
+  // B by rows (RowRhs): lanes 0-2 the spring and contact terms, lanes 3-5 the volume gradient,
+  const int ncols = fresh ? 6 : 3, width = fresh ? 8 : 4;
+  // row position[j] holds free particle j: the factor's order, so the solve needs no copies
+  const int* position = sys.factor.get_positions().data();
+  RowRhs B = RowRhs::Zero(nf, width);
   const double* sx = snapshot.col(0).data();
   const double* sy = snapshot.col(1).data();
   const double* sz = snapshot.col(2).data();
   // local step: every spring's rest-length vector along its current direction (in blocks of 256
-  // springs, so the vectors stay in cache between the two loops)
+  // springs, so the vectors stay in cache between the two loops), added to both ends' rows of B
+  // four lanes at a time (lane 3 adds k * 0 = +0 to +0, and is overwritten by the volume
+  // gradient on a round's first iteration; per lane the same products and sums, in the same
+  // spring order, as three scalar columns)
   constexpr int block = 256;
   double d[3 * block];
   const int num_springs = static_cast<int>(sys.springs.size());
+  double* rows = B.data();
   for (int s0 = 0; s0 < num_springs; s0 += block) {
     const int count = std::min(block, num_springs - s0);
     spring_vectors::calc(sys.springs.data() + s0, count, sx, sy, sz, model.rest, d);
-    for (int s = 0; s < count; ++s) {
-      const LocalSpring& sp = sys.springs[s0 + s];
-      const double dx = d[3 * s], dy = d[3 * s + 1], dz = d[3 * s + 2];
-      const double k = sp.k;
-      if (sp.a >= 0) {
-        bx[sp.a] += k * (sp.b >= 0 ? dx : dx + sx[sp.pb]);
-        by[sp.a] += k * (sp.b >= 0 ? dy : dy + sy[sp.pb]);
-        bz[sp.a] += k * (sp.b >= 0 ? dz : dz + sz[sp.pb]);
-      }
-      if (sp.b >= 0) {
-        bx[sp.b] += k * (sp.a >= 0 ? -dx : sx[sp.pa] - dx);
-        by[sp.b] += k * (sp.a >= 0 ? -dy : sy[sp.pa] - dy);
-        bz[sp.b] += k * (sp.a >= 0 ? -dz : sz[sp.pa] - dz);
-      }
-    }
+    spring_vectors::add_to_rows(sys.springs.data() + s0, count, d, sx, sy, sz, position, rows, width);
   }
   const double mass_term = m.particle_mass_kg * ctx.mass_scale;
   for (int j = 0; j < nf; ++j) {
     const int p = m.free[j];
-    if (ctx.inertial) B.row(j).head<3>() += mass_term * ctx.inertial->row(p);
+    if (ctx.inertial) B.row(position[j]).head<3>() += mass_term * ctx.inertial->row(p);
     if (sys.factored_weight[j] == 0.0) continue;
     const Vec3 target = ws.bone_contacts.has(p) ? ws.bone_contacts.calc_target(p, motions)
                                                 : Vec3(ws.pair_target.row(p).transpose() / ws.pair_count[p]);
-    B.row(j).head<3>() += sys.factored_weight[j] * target.transpose();
+    B.row(position[j]).head<3>() += sys.factored_weight[j] * target.transpose();
   }
   // volume gradient at the current iterate (first iteration of a round only)
   if (fresh) {
     const Points3 g = calc_particle_volume_gradient(m, sys.surface_map, snapshot.middleRows(base, m.num_particles));
-    for (int j = 0; j < nf; ++j) B.row(j).tail<3>() = g.row(m.free[j] - base);
+    for (int j = 0; j < nf; ++j) B.row(position[j]).segment<3>(3) = g.row(m.free[j] - base);
   }
   // global step, then the volume: x = x_u + t Y with Y = -K^-1 g, t the root of V(t) = V0
-  sys.factor.solve(B);
+  sys.factor.solve_factor_rows(B, ncols);
   Points3 xm = snapshot.middleRows(base, m.num_particles);
-  for (int j = 0; j < nf; ++j) xm.row(m.free[j] - base) = B.row(j).head<3>();
+  for (int j = 0; j < nf; ++j) xm.row(m.free[j] - base) = B.row(position[j]).head<3>();
   if (fresh) {
     sys.volume_direction = Points3::Zero(m.num_particles, 3);
-    for (int j = 0; j < nf; ++j) sys.volume_direction.row(m.free[j] - base) = -B.row(j).tail<3>();
+    for (int j = 0; j < nf; ++j) sys.volume_direction.row(m.free[j] - base) = -B.row(position[j]).segment<3>(3);
     sys.volume_direction_surface = sys.surface_map * sys.volume_direction;
   }
   if (volume) volume_failed = !std::isfinite(hold_volume_along(m, sys.surface_map, xm, sys.volume_direction, sys.volume_direction_surface));
@@ -1751,9 +1817,21 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
     const bool stall_rule = ws.surfaces.enabled && o.stall_iterations > 0;
     std::vector<double> best_step(nm, std::numeric_limits<double>::infinity());
     std::vector<int> since_best(nm, 0);
+    // the muscles whose rows of x the last iteration wrote: the snapshot copies and the finiteness
+    // check cover all rows at a round's first iteration and only those rows after it (the other
+    // rows are unchanged since)
+    std::vector<char> ran(nm, 1);
+    auto rows_of = [&](Points3& m, int mi) {
+      return m.middleRows(model.muscles[mi].first_particle, model.muscles[mi].num_particles);
+    };
     for (int it = 0; it < o.max_iterations; ++it) {
       ++info_.iterations;
-      snapshot = x;
+      if (it == 0 || snapshot.rows() != x.rows()) {
+        snapshot = x;
+      } else {
+        for (int mi = 0; mi < nm; ++mi)
+          if (ran[mi]) rows_of(snapshot, mi) = rows_of(x, mi);
+      }
       set_pair_targets(model, ws, snapshot);
       add_surface_particle_targets(model, ws, snapshot);
       parallel_for(static_cast<std::size_t>(nm), [&](std::size_t mi) {
@@ -1767,7 +1845,14 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
         if (active[mi] || !round_wake) first[mi] = 0;
       }
       info_.residual = *std::max_element(steps.begin(), steps.end());
-      if (!x.allFinite() || !std::isfinite(info_.residual)) {
+      ran = active;
+      bool finite = true;
+      if (it == 0) {
+        finite = x.allFinite();
+      } else {
+        for (int mi = 0; mi < nm && finite; ++mi) finite = !active[mi] || rows_of(x, mi).allFinite();
+      }
+      if (!finite || !std::isfinite(info_.residual)) {
         int bad = 0;
         for (int mi = 0; mi < nm; ++mi)
           if (!std::isfinite(steps[mi]) ||

@@ -12,9 +12,11 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <mutex>
 #include <new>
 #include <string>
 
@@ -177,7 +179,21 @@ struct MeshQuery::Bvh {
   RTCDevice device = nullptr;
   RTCScene scene = nullptr;
   RTCGeometry geometry = nullptr;  // the clusters (owned by the scene)
+  // Rays through the compact tree (trace_compact) instead of the Embree scene: set by the first
+  // update_vertices of a compact-tree query of at most kRaysOnCompactClusters clusters, whose
+  // Embree scene is then no longer refitted. A static query, or a large one, keeps Embree's
+  // traversal (faster on big meshes); the answers are the same either way.
+  static constexpr unsigned kRaysOnCompactClusters = 1024;
+  bool rays_on_compact = false;
   bool refittable = false;         // two-level scene whose commits refit (see build_scene)
+  // A refit's Embree commit waits for the first query that traverses the Embree scene (rays,
+  // inside tests; closest points with embree_clusters): the solvers refit surfaces several times
+  // between ray queries, and only the last positions need the scene's boxes. The refit computes
+  // every box from the current slots (bounds_callback) over the topology of the first build, so
+  // a late commit gives the boxes an eager one would. Queries are const and may run on several
+  // threads: the first one commits under the mutex.
+  mutable std::atomic<bool> commit_pending{false};
+  mutable std::mutex commit_mutex;
   // Triangles are stored in "slots" so that triangles near in space are near in memory: in the
   // depth-first leaf order of the compact tree (default), or in Morton order of their centroids
   // (embree_clusters). Clusters are runs of at most kCluster consecutive slots (the compact tree's
@@ -229,6 +245,9 @@ struct MeshQuery::Bvh {
   double grid_inv_cell = 0.0;
   std::array<int, 3> grid_n{1, 1, 1};
   std::vector<unsigned> grid_vertex;  // x fastest
+  // The welded vertices' positions when the grid was built: update_vertices keeps the grid while
+  // every vertex is within a quarter of a cell of them (grid_is_current).
+  std::vector<double> grid_built_xyz;
   unsigned find_start_vertex(const Vec3& p) const {
     std::size_t index = 0, stride = 1;
     for (int k = 0; k < 3; ++k) {
@@ -779,6 +798,7 @@ void intersect_slot(const RTCIntersectFunctionNArguments* args, RayState* r, uns
   }
   if (r->first.triangle >= 0 && hit->t == r->first.t && hit->triangle > r->first.triangle) return;
   r->first = *hit;
+  if (args == nullptr) return;  // the compact tree's traversal (trace_compact) prunes by r->first
   // Shrink Embree's far distance (rounded up, padded) so farther boxes are culled.
   auto* rayhit = reinterpret_cast<RTCRayHit*>(args->rayhit);
   const float tf = round_up(hit->t * (1.0 + 1e-6) + r->bvh->pad / r->direction.norm());
@@ -787,20 +807,20 @@ void intersect_slot(const RTCIntersectFunctionNArguments* args, RayState* r, uns
   rayhit->hit.primID = args->primID;
 }
 
-void intersect_callback(const RTCIntersectFunctionNArguments* args) {
-  if (args->N != 1 || args->valid[0] == 0) return;
-  auto* r = reinterpret_cast<RayState*>(args->context);
+// The exact tests of one cluster's triangles against ray r (Embree's callback, args set; or the
+// compact tree's traversal, args null).
+void visit_ray_cluster(RayState* r, unsigned cluster, const RTCIntersectFunctionNArguments* args) {
   constexpr unsigned K = MeshQuery::Bvh::kCluster;
-  const unsigned first = r->bvh->slot_begin(args->primID);
-  const unsigned count = r->bvh->slot_end(args->primID) - first;
+  const unsigned first = r->bvh->slot_begin(cluster);
+  const unsigned count = r->bvh->slot_end(cluster) - first;
   // Exact (double) tests only for the triangles whose bounding sphere the line meets: the others
   // can neither be hit nor grazed.
-  const double* anchor = r->bvh->anchors.data() + 3 * static_cast<std::size_t>(args->primID);
+  const double* anchor = r->bvh->anchors.data() + 3 * static_cast<std::size_t>(cluster);
   const Vec3 oa(r->origin.x() - anchor[0], r->origin.y() - anchor[1], r->origin.z() - anchor[2]);
   const double margin =
       r->margin + MeshQuery::Bvh::kFloatMargin * (oa.norm() + 2.0 * r->bvh->cluster_extent);
   unsigned mask = find_ray_candidates(
-      r->bvh->soa.data() + MeshQuery::Bvh::kSoaRows * K * args->primID, static_cast<float>(oa.x()),
+      r->bvh->soa.data() + MeshQuery::Bvh::kSoaRows * K * cluster, static_cast<float>(oa.x()),
       static_cast<float>(oa.y()), static_cast<float>(oa.z()), r->unit_direction[0],
       r->unit_direction[1], r->unit_direction[2], to_float_or_infinity(margin));
   if (count < K) mask &= (1u << count) - 1u;
@@ -811,10 +831,88 @@ void intersect_callback(const RTCIntersectFunctionNArguments* args) {
   }
 }
 
+void intersect_callback(const RTCIntersectFunctionNArguments* args) {
+  if (args->N != 1 || args->valid[0] == 0) return;
+  visit_ray_cluster(reinterpret_cast<RayState*>(args->context), args->primID, args);
+}
+
+// A ray through the compact tree (MeshQueryOptions::ClosestPointTree::compact), without Embree:
+// depth-first over the 4-wide nodes, entering every child whose box, widened by 1e-7 of the
+// mesh's scale, the ray's segment [t_min, t_max] meets (a slab test in double), and testing the
+// clusters reached as Embree's callback does. Every cluster holding a triangle that the ray hits
+// or grazes is reached (its box holds the triangle; the widening covers the slab test's rounding
+// many times over), and a cluster the ray misses adds neither a hit nor a graze, so the crossings,
+// the hits and the first hit (ties to the lower triangle index) are those of the Embree scene.
+// Used for small deforming surfaces (Bvh::rays_on_compact), whose refits then need no Embree work.
+void trace_compact(const MeshQuery::Bvh& bvh, RayState& r) {
+  const Vec3& o = r.origin;
+  const Vec3& d = r.direction;
+  const double pad = 1e-7 * bvh.scale;
+  std::array<double, 3> inv{};
+  for (int k = 0; k < 3; ++k) inv[static_cast<std::size_t>(k)] = d[k] != 0.0 ? 1.0 / d[k] : 0.0;
+  // Whether the ray's segment meets the box [lo - pad, hi + pad] (axis by axis; a direction
+  // component of 0 needs the origin within the slab).
+  const auto meets = [&](const MeshQuery::Bvh::Node4& node, unsigned k) {
+    const float lo[3] = {node.lo_x[k], node.lo_y[k], node.lo_z[k]};
+    const float hi[3] = {node.hi_x[k], node.hi_y[k], node.hi_z[k]};
+    double enter = r.t_min, leave = r.t_max;
+    if (r.mode == RayMode::first && r.first.triangle >= 0) leave = std::min(leave, r.first.t);
+    const double slack = 1e-9 * (std::abs(enter) + (std::isfinite(leave) ? std::abs(leave) : 0.0)) + 1e-300;
+    enter -= slack;
+    leave += slack;
+    for (int a = 0; a < 3; ++a) {
+      const double l = lo[a] - pad, h = hi[a] + pad;
+      if (d[a] == 0.0) {
+        if (o[a] < l || o[a] > h) return false;
+        continue;
+      }
+      double t0 = (l - o[a]) * inv[static_cast<std::size_t>(a)], t1 = (h - o[a]) * inv[static_cast<std::size_t>(a)];
+      if (t0 > t1) std::swap(t0, t1);
+      const double widen = 1e-9 * (std::abs(t0) + std::abs(t1));
+      enter = std::max(enter, t0 - widen);
+      leave = std::min(leave, t1 + widen);
+      if (!(enter <= leave)) return false;
+    }
+    return true;
+  };
+  std::int32_t stack[4 * MeshQuery::Bvh::kMaxTreeDepth + 4];
+  int top = 0;
+  stack[top++] = bvh.root;
+  while (top > 0) {
+    const std::int32_t item = stack[--top];
+    if (item < 0) {
+      visit_ray_cluster(&r, static_cast<unsigned>(~item), nullptr);
+      continue;
+    }
+    const MeshQuery::Bvh::Node4& node = bvh.nodes[static_cast<std::size_t>(item)];
+    for (unsigned k = 0; k < 4; ++k)
+      if ((node.valid & (1u << k)) != 0 && meets(node, k)) stack[top++] = node.child[k];
+  }
+}
+
 void occluded_callback(const RTCOccludedFunctionNArguments* /*args*/) {}
+
+// Commits a refit left pending by update_vertices (see Bvh::commit_pending); a no-op otherwise.
+void commit_pending_refit(const MeshQuery::Bvh& bvh) {
+  if (!bvh.commit_pending.load(std::memory_order_acquire)) return;
+  const std::lock_guard lock(bvh.commit_mutex);
+  if (!bvh.commit_pending.load(std::memory_order_relaxed)) return;
+  rtcCommitGeometry(bvh.geometry);
+  rtcCommitScene(bvh.scene);
+  if (const RTCError err = rtcGetDeviceError(bvh.device); err != RTC_ERROR_NONE) {
+    throw_internal("Embree failed to refit the BVH (error code " +
+                   std::to_string(static_cast<int>(err)) + ")");
+  }
+  bvh.commit_pending.store(false, std::memory_order_release);
+}
 
 // Runs one ray through the scene with the given mode.
 void trace(const MeshQuery::Bvh& bvh, RayState& state) {
+  if (bvh.rays_on_compact) {
+    trace_compact(bvh, state);
+    return;
+  }
+  commit_pending_refit(bvh);
   rtcInitIntersectContext(&state.context);
   RTCRayHit rh;
   rh.ray.org_x = static_cast<float>(state.origin.x());
@@ -950,16 +1048,20 @@ void fill_slots(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
   constexpr unsigned K = MeshQuery::Bvh::kCluster;
   const std::size_t num_clusters = bvh.num_clusters();
   bvh.corners.resize(9 * static_cast<std::size_t>(bvh.num_slots));
-  // Lanes past a cluster's triangles stay zero from the first fill (refits write the same lanes).
+  // Lanes past a cluster's triangles stay zero from the first fill (refits write the same lanes):
+  // cleared on a new layout only.
   if (bvh.soa.size() != MeshQuery::Bvh::kSoaRows * K * num_clusters)
     bvh.soa.assign(MeshQuery::Bvh::kSoaRows * K * num_clusters, 0.0f);
   bvh.cluster_box.resize(6 * num_clusters);
   bvh.cluster_normal.resize(3 * num_clusters);
   bvh.anchors.resize(3 * num_clusters);
-  // Per cluster: an upper bound of max(|centre - anchor| + radius) (max |rel| + max radius).
-  std::vector<double> extent(num_clusters, 0.0);
+  // The largest over the clusters of an upper bound of max(|centre - anchor| + radius) (max |rel|
+  // + max radius).
+  double max_extent = 0.0;
   // Serial on purpose: a parallel_for here made the build ~20 % dearer in CPU time (TBB's
-  // workers spinning), and callers refit several meshes in parallel anyway.
+  // workers spinning), and callers refit several meshes in parallel anyway. The square roots
+  // and divisions of a cluster's triangles run in a loop of their own, so they overlap instead of
+  // waiting on each other (the same operations on the same values as one loop).
   for (std::size_t cluster = 0; cluster < num_clusters; ++cluster) {
     const std::size_t first = bvh.cluster_begin[cluster];
     const std::size_t count = bvh.cluster_begin[cluster + 1] - first;
@@ -979,13 +1081,16 @@ void fill_slots(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
     anchor /= static_cast<double>(count);
     for (int j = 0; j < 3; ++j) bvh.anchors[3 * cluster + static_cast<std::size_t>(j)] = anchor[j];
     float* block = bvh.soa.data() + MeshQuery::Bvh::kSoaRows * K * cluster;
-    double max_rel2 = 0.0, max_r = 0.0;
+    // The cluster's corner box (refit_compact_tree and Embree's bounds callback reuse it).
     double lo[3], hi[3];
     for (int j = 0; j < 3; ++j) {
       lo[j] = std::numeric_limits<double>::infinity();
       hi[j] = -std::numeric_limits<double>::infinity();
     }
-    Vec3 normal_sum = Vec3::Zero();
+    // per triangle: the squared radius of its disc about its centre, its normal n, |n|^2 and
+    // whether the normal is trusted
+    std::array<double, K> r2, n_len2, trusted;
+    std::array<Vec3, K> normal;
     for (std::size_t k = 0; k < count; ++k) {
       const auto slot = static_cast<unsigned>(first + k);
       const Vec3 a = bvh.corner(slot, 0), b = bvh.corner(slot, 1), cc = bvh.corner(slot, 2);
@@ -994,35 +1099,43 @@ void fill_slots(MeshQuery::Bvh& bvh, const TriMesh& mesh) {
         hi[j] = std::max(hi[j], std::max(a[j], std::max(b[j], cc[j])));
       }
       const Vec3& centre = centres[k];
-      const double r = std::sqrt(std::max({(a - centre).squaredNorm(), (b - centre).squaredNorm(),
-                                           (cc - centre).squaredNorm()}));
+      r2[k] = std::max({(a - centre).squaredNorm(), (b - centre).squaredNorm(), (cc - centre).squaredNorm()});
       // The computed normal's direction error is about 1e-16 / sin(angle at a): trust it only when
       // that angle is not tiny (error < 1e-12), otherwise fall back to the sphere bound (n = 0).
       const Vec3 ab = b - a, ac = cc - a;
-      const Vec3 n = ab.cross(ac);
-      normal_sum += n;
-      const double n_len2 = n.squaredNorm();
-      const Vec3 unit = n_len2 > 1e-8 * ab.squaredNorm() * ac.squaredNorm() ? Vec3(n / std::sqrt(n_len2))
-                                                                           : Vec3::Zero();
-      const Vec3 rel = centre - anchor;
+      normal[k] = ab.cross(ac);
+      n_len2[k] = normal[k].squaredNorm();
+      trusted[k] = n_len2[k] > 1e-8 * ab.squaredNorm() * ac.squaredNorm() ? 1.0 : 0.0;
+    }
+    std::array<double, K> r, n_len;
+    for (std::size_t k = 0; k < count; ++k) {
+      r[k] = std::sqrt(r2[k]);
+      n_len[k] = std::sqrt(n_len2[k]);
+    }
+    double max_rel2 = 0.0, max_r = 0.0;
+    Vec3 normal_sum = Vec3::Zero();
+    for (std::size_t k = 0; k < count; ++k) {
+      normal_sum += normal[k];
+      const Vec3 unit = trusted[k] != 0.0 ? Vec3(normal[k] / n_len[k]) : Vec3::Zero();
+      const Vec3 rel = centres[k] - anchor;
       block[0 * K + k] = static_cast<float>(rel.x());
       block[1 * K + k] = static_cast<float>(rel.y());
       block[2 * K + k] = static_cast<float>(rel.z());
       block[3 * K + k] = static_cast<float>(unit.x());
       block[4 * K + k] = static_cast<float>(unit.y());
       block[5 * K + k] = static_cast<float>(unit.z());
-      block[6 * K + k] = round_up(r);  // rounded up: the disc still holds the triangle
+      block[6 * K + k] = round_up(r[k]);  // rounded up: the disc still holds the triangle
       max_rel2 = std::max(max_rel2, rel.squaredNorm());
-      max_r = std::max(max_r, r);
+      max_r = std::max(max_r, r[k]);
     }
-    extent[cluster] = std::sqrt(max_rel2) + max_r;
+    max_extent = std::max(max_extent, std::sqrt(max_rel2) + max_r);
     for (int j = 0; j < 3; ++j) {
       bvh.cluster_box[6 * cluster + static_cast<std::size_t>(j)] = lo[j];
       bvh.cluster_box[6 * cluster + 3 + static_cast<std::size_t>(j)] = hi[j];
       bvh.cluster_normal[3 * cluster + static_cast<std::size_t>(j)] = normal_sum[j];
     }
   }
-  bvh.cluster_extent = num_clusters > 0 ? *std::max_element(extent.begin(), extent.end()) : 0.0;
+  bvh.cluster_extent = max_extent;
   bvh.box_lo = mesh.V.colwise().minCoeff().transpose();
   bvh.box_hi = mesh.V.colwise().maxCoeff().transpose();
   const double scale = std::max(bvh.box_lo.cwiseAbs().maxCoeff(), bvh.box_hi.cwiseAbs().maxCoeff()) +
@@ -1037,6 +1150,7 @@ void build_start_grid(MeshQuery::Bvh& bvh) {
   const Vec3 lo = bvh.box_lo, hi = bvh.box_hi;
   const double scale = bvh.scale;
   const auto num_welded = static_cast<unsigned>(bvh.vertex_xyz.size() / 3);
+  bvh.grid_built_xyz = bvh.vertex_xyz;
   // Start-vertex grid: cubic cells over the bounding box enlarged by 10% of its diagonal. Each
   // cell holding vertices keeps the one nearest its centre; two raster sweeps (forward with the
   // -x, -y, -z neighbours, backward with +x, +y, +z) then pass to every cell the nearest-to-centre
@@ -1072,6 +1186,7 @@ void build_start_grid(MeshQuery::Bvh& bvh) {
   // than the current one.
   const auto offer = [&](std::size_t c, const Vec3& centre, unsigned v) {
     if (v == kNone) return;
+    if (v == grid[c]) return;  // the sweeps pass most cells their own vertex again: no change
     const double d2 = bvh.vertex_distance2(v, centre);
     if (grid[c] == kNone || d2 < d2_of[c]) {
       grid[c] = v;
@@ -1114,6 +1229,25 @@ void build_start_grid(MeshQuery::Bvh& bvh) {
   }
 }
 
+// Whether the start-vertex grid may be kept after a refit: every welded vertex is within a
+// quarter of a cell of where it was when the grid was built. Any vertex is a valid start (the
+// descent and the exact traversal find the same closest point from every start, ties going to
+// the lower triangle index), so the grid only steers where the search begins; rebuilding it at
+// every refit cost as much as a third of update_vertices for the small deforming surfaces that
+// the fibres-first solver refits several times per frame.
+bool grid_is_current(const MeshQuery::Bvh& bvh) {
+  if (bvh.grid_built_xyz.size() != bvh.vertex_xyz.size() || bvh.grid_vertex.empty()) return false;
+  const double reach = 0.25 / bvh.grid_inv_cell;
+  const double reach2 = reach * reach;
+  for (std::size_t i = 0; i < bvh.vertex_xyz.size(); i += 3) {
+    const double dx = bvh.vertex_xyz[i] - bvh.grid_built_xyz[i];
+    const double dy = bvh.vertex_xyz[i + 1] - bvh.grid_built_xyz[i + 1];
+    const double dz = bvh.vertex_xyz[i + 2] - bvh.grid_built_xyz[i + 2];
+    if (!(dx * dx + dy * dy + dz * dz <= reach2)) return false;
+  }
+  return true;
+}
+
 // (Re)creates the Embree scene over the clusters. A static scene is one BVH of high quality. A
 // refittable one is two-level (scene quality LOW, the only mode in which Embree honours the
 // geometry's REFIT quality): its first commit builds an SAH tree, later commits only refit the
@@ -1125,6 +1259,7 @@ void build_scene(MeshQuery::Bvh& bvh, bool refittable) {
     bvh.scene = nullptr;
     bvh.geometry = nullptr;
   }
+  bvh.commit_pending.store(false, std::memory_order_relaxed);
   bvh.scene = rtcNewScene(bvh.device);
   rtcSetSceneFlags(bvh.scene, RTC_SCENE_FLAG_ROBUST);
   rtcSetSceneBuildQuality(bvh.scene, refittable ? RTC_BUILD_QUALITY_LOW : RTC_BUILD_QUALITY_HIGH);
@@ -1613,18 +1748,16 @@ void MeshQuery::update_vertices(const Points3& V) {
   // only positions change. The clusters' boxes are refitted by Embree from the bounds callback.
   fill_slots(bvh, mesh_);
   update_welded_positions(bvh, mesh_);
-  build_start_grid(bvh);
+  if (!grid_is_current(bvh)) build_start_grid(bvh);
   if (bvh.compact) refit_compact_tree(bvh);
+  // a small deforming surface: rays through the compact tree from now on, no Embree work
+  if (bvh.compact && bvh.num_clusters() <= Bvh::kRaysOnCompactClusters) bvh.rays_on_compact = true;
+  if (bvh.rays_on_compact) return;
   if (!bvh.refittable) {
     build_scene(bvh, true);  // first update: one build of the refittable tree
     return;
   }
-  rtcCommitGeometry(bvh.geometry);
-  rtcCommitScene(bvh.scene);
-  if (const RTCError err = rtcGetDeviceError(bvh.device); err != RTC_ERROR_NONE) {
-    throw_internal("Embree failed to refit the BVH (error code " +
-                   std::to_string(static_cast<int>(err)) + ")");
-  }
+  bvh.commit_pending.store(true, std::memory_order_release);  // committed at the next ray
 }
 
 MeshQuery::~MeshQuery() = default;
@@ -1691,6 +1824,7 @@ ClosestPoint MeshQuery::closest_with_hint(const Vec3& p, int hint_triangle,
   if (bvh_->compact) {
     closest_compact(&q, q.start_vertex >= 0 ? static_cast<std::int32_t>(bvh_->home_leaf[static_cast<std::size_t>(q.start_vertex)]) : -1);
   } else {
+    commit_pending_refit(*bvh_);
     RTCPointQueryContext context;
     rtcInitPointQueryContext(&context);
     rtcPointQuery(bvh_->scene, &query, &context, point_query_callback, &q);

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cstddef>
+#include <cstdint>
 
 namespace fascicle {
 
@@ -35,8 +36,8 @@ template <int W>
 // or three consecutive columns when each is the previous one without its first entry (the test
 // and the order of the operations are those of CHOLMOD's ldl_lsolve kernels, so every column of X
 // gets the same bits as there: x_i - (l0 y0 + l1 y1 + l2 y2), summed left to right).
-template <int W>
-[[gnu::always_inline]] inline void forward_unit(const int* Lp, const int* Li, const int* Lnz,
+template <int W, class I>
+[[gnu::always_inline]] inline void forward_unit(const int* Lp, const I* Li, const int* Lnz,
                                                 const double* Lx, int n, double* X) {
   constexpr int S = 4 * W;
   for (int j = 0; j < n;) {
@@ -98,8 +99,8 @@ template <int W>
 // only with the chain length of the group CHOLMOD solves it in (solve_simplicial_ldlt). Per
 // column: y_j / d_j minus the dot product with the rows below, then the chain's own columns. A
 // group reads only rows below its columns, so groups of different columns of X may interleave.
-template <int MaxChain>
-[[gnu::always_inline]] inline int backward_group(const int* Lp, const int* Li, const int* Lnz,
+template <int MaxChain, class I>
+[[gnu::always_inline]] inline int backward_group(const int* Lp, const I* Li, const int* Lnz,
                                                  const double* Lx, int j, double* X, int stride) {
   auto row = [X, stride](int k) { return X + static_cast<std::ptrdiff_t>(k) * stride; };
   int p = Lp[j];
@@ -148,8 +149,8 @@ template <int MaxChain>
 }
 
 // All columns of one four-wide half of X, the last column first.
-template <int MaxChain>
-[[gnu::always_inline]] inline void backward_diagonal(const int* Lp, const int* Li, const int* Lnz,
+template <int MaxChain, class I>
+[[gnu::always_inline]] inline void backward_diagonal(const int* Lp, const I* Li, const int* Lnz,
                                                      const double* Lx, int n, double* X, int stride) {
   for (int j = n - 1; j >= 0;) j = backward_group<MaxChain>(Lp, Li, Lnz, Lx, j, X, stride);
 }
@@ -157,8 +158,8 @@ template <int MaxChain>
 // Both halves of an eight-wide X, the first with chains of at most two columns and the second
 // with chains of MaxChainB, in one sweep: the group with the higher last column goes first, so
 // the two halves read the same columns of L while they are in cache.
-template <int MaxChainB>
-[[gnu::always_inline]] inline void backward_diagonal_pair(const int* Lp, const int* Li, const int* Lnz,
+template <int MaxChainB, class I>
+[[gnu::always_inline]] inline void backward_diagonal_pair(const int* Lp, const I* Li, const int* Lnz,
                                                           const double* Lx, int n, double* X) {
   int ja = n - 1, jb = n - 1;
   while (ja >= 0 || jb >= 0) {
@@ -169,9 +170,10 @@ template <int MaxChainB>
 
 // Columns 0-3 of a pass over more than four go through CHOLMOD's four-column kernels and the
 // others through those of their own count; the forward kernels chain alike for every count.
-[[gnu::always_inline]] inline void solve_body(const cholmod_factor& L, double* X, int ncols) {
+// Li: the factor's row indices, or their 16-bit copy (SimplicialSolveWorkspace::row_index16).
+template <class I>
+[[gnu::always_inline]] inline void solve_body(const cholmod_factor& L, const I* Li, double* X, int ncols) {
   const auto* Lp = static_cast<const int*>(L.p);
-  const auto* Li = static_cast<const int*>(L.i);
   const auto* Lnz = static_cast<const int*>(L.nz);
   const auto* Lx = static_cast<const double*>(L.x);
   const int n = static_cast<int>(L.n);
@@ -185,10 +187,42 @@ template <int MaxChainB>
   if (ncols == 8) backward_diagonal_pair<2>(Lp, Li, Lnz, Lx, n, X);
   else backward_diagonal_pair<3>(Lp, Li, Lnz, Lx, n, X);
 }
-__attribute__((target("avx2"))) void solve_avx2(const cholmod_factor& L, double* X, int ncols) {
-  solve_body(L, X, ncols);
+__attribute__((target("avx2"))) void solve_avx2(const cholmod_factor& L, const int* Li, double* X, int ncols) {
+  solve_body(L, Li, X, ncols);
 }
-void solve_generic(const cholmod_factor& L, double* X, int ncols) { solve_body(L, X, ncols); }
+__attribute__((target("avx2"))) void solve_avx2(const cholmod_factor& L, const std::uint16_t* Li, double* X,
+                                                int ncols) {
+  solve_body(L, Li, X, ncols);
+}
+void solve_generic(const cholmod_factor& L, const int* Li, double* X, int ncols) { solve_body(L, Li, X, ncols); }
+void solve_generic(const cholmod_factor& L, const std::uint16_t* Li, double* X, int ncols) {
+  solve_body(L, Li, X, ncols);
+}
+
+// Brings the workspace's 16-bit copy of L's row indices up to date (n <= 65536 only): kept while
+// L's index array, its size and every column's start and count are those it was made from (a
+// rank-one update or downdate that adds entries changes a count; one that does not leaves the
+// pattern as it was). Returns the copy, or null when n is too large for 16 bits.
+const std::uint16_t* get_row_index16(const cholmod_factor& L, SimplicialSolveWorkspace& ws) {
+  const int n = static_cast<int>(L.n);
+  if (n > 65536) return nullptr;
+  const auto* Lp = static_cast<const int*>(L.p);
+  const auto* Lnz = static_cast<const int*>(L.nz);
+  const auto* Li = static_cast<const int*>(L.i);
+  const bool same = ws.row_index_source == L.i && ws.row_index16.size() == L.nzmax &&
+                    ws.column_start.size() == static_cast<std::size_t>(n) &&
+                    std::equal(Lp, Lp + n, ws.column_start.begin()) &&
+                    std::equal(Lnz, Lnz + n, ws.column_count.begin());
+  if (!same) {
+    ws.row_index16.assign(L.nzmax, 0);
+    for (int j = 0; j < n; ++j)
+      for (int p = Lp[j]; p < Lp[j] + Lnz[j]; ++p) ws.row_index16[static_cast<std::size_t>(p)] = static_cast<std::uint16_t>(Li[p]);
+    ws.column_start.assign(Lp, Lp + n);
+    ws.column_count.assign(Lnz, Lnz + n);
+    ws.row_index_source = L.i;
+  }
+  return ws.row_index16.data();
+}
 
 bool has_avx2() {
   __builtin_cpu_init();
@@ -201,6 +235,53 @@ bool is_simplicial_ldlt(const void* factor) {
   const auto* L = static_cast<const cholmod_factor*>(factor);
   return L && !L->is_super && !L->is_ll && L->minor == L->n && L->itype == CHOLMOD_INT &&
          L->xtype == CHOLMOD_REAL && L->dtype == CHOLMOD_DOUBLE && L->x && L->p && L->i && L->nz;
+}
+
+bool solve_simplicial_ldlt_in_factor_order(const void* factor, double* X, int ncols, int width,
+                                           SimplicialSolveWorkspace& workspace) {
+  if (!is_simplicial_ldlt(factor) || ncols < 1 || ncols > 8 || width != (ncols <= 4 ? 4 : 8)) return false;
+  const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
+  if (workspace.kernel == SimplicialKernel::automatic)
+    workspace.kernel = has_avx2() ? SimplicialKernel::avx2 : SimplicialKernel::generic;
+  const bool avx2 = workspace.kernel == SimplicialKernel::avx2;
+  if (const std::uint16_t* Li16 = get_row_index16(L, workspace))
+    avx2 ? solve_avx2(L, Li16, X, ncols) : solve_generic(L, Li16, X, ncols);
+  else
+    avx2 ? solve_avx2(L, static_cast<const int*>(L.i), X, ncols) : solve_generic(L, static_cast<const int*>(L.i), X, ncols);
+  return true;
+}
+
+bool solve_simplicial_ldlt_rows(const void* factor, double* B, int ncols, int width,
+                                SimplicialSolveWorkspace& workspace) {
+  if (!is_simplicial_ldlt(factor) || ncols < 1 || ncols > 8 || width != (ncols <= 4 ? 4 : 8)) return false;
+  const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
+  const int n = static_cast<int>(L.n);
+  const std::size_t size = static_cast<std::size_t>(n) * width;
+  if (workspace.rows.size() < size) workspace.rows.resize(size);
+  // the layout of `rows` changes (solve_simplicial_ldlt clears its unused lanes again)
+  workspace.row_width = 0;
+  workspace.used_columns = 0;
+  double* X = workspace.rows.data();
+  // (P b)_k = b_{Perm[k]}: whole rows, the lanes past ncols cleared
+  const int* perm = L.ordering != CHOLMOD_NATURAL ? static_cast<const int*>(L.Perm) : nullptr;
+  for (int k = 0; k < n; ++k) {
+    const double* from = B + static_cast<std::ptrdiff_t>(perm ? perm[k] : k) * width;
+    double* to = X + static_cast<std::ptrdiff_t>(k) * width;
+    for (int c = 0; c < width; ++c) to[c] = c < ncols ? from[c] : 0.0;
+  }
+  if (workspace.kernel == SimplicialKernel::automatic)
+    workspace.kernel = has_avx2() ? SimplicialKernel::avx2 : SimplicialKernel::generic;
+  const bool avx2 = workspace.kernel == SimplicialKernel::avx2;
+  if (const std::uint16_t* Li16 = get_row_index16(L, workspace))
+    avx2 ? solve_avx2(L, Li16, X, ncols) : solve_generic(L, Li16, X, ncols);
+  else
+    avx2 ? solve_avx2(L, static_cast<const int*>(L.i), X, ncols) : solve_generic(L, static_cast<const int*>(L.i), X, ncols);
+  for (int k = 0; k < n; ++k) {
+    const double* from = X + static_cast<std::ptrdiff_t>(k) * width;
+    double* to = B + static_cast<std::ptrdiff_t>(perm ? perm[k] : k) * width;
+    for (int c = 0; c < ncols; ++c) to[c] = from[c];
+  }
+  return true;
 }
 
 bool solve_simplicial_ldlt(const void* factor, double* B, int ncols, int ld,
@@ -229,7 +310,13 @@ bool solve_simplicial_ldlt(const void* factor, double* B, int ncols, int ld,
   }
   if (workspace.kernel == SimplicialKernel::automatic)
     workspace.kernel = has_avx2() ? SimplicialKernel::avx2 : SimplicialKernel::generic;
-  (workspace.kernel == SimplicialKernel::avx2 ? solve_avx2 : solve_generic)(L, X, ncols);
+  // The 16-bit copy of the row indices (n <= 65536): the solve streams L twice, and its 4-byte
+  // indices are a third of each entry's bytes; the same entries in the same order, so the same bits.
+  const bool avx2 = workspace.kernel == SimplicialKernel::avx2;
+  if (const std::uint16_t* Li16 = get_row_index16(L, workspace))
+    avx2 ? solve_avx2(L, Li16, X, ncols) : solve_generic(L, Li16, X, ncols);
+  else
+    avx2 ? solve_avx2(L, static_cast<const int*>(L.i), X, ncols) : solve_generic(L, static_cast<const int*>(L.i), X, ncols);
   for (int c = 0; c < ncols; ++c) {
     double* col = B + static_cast<std::ptrdiff_t>(c) * ld;
     for (int k = 0; k < n; ++k) col[perm ? perm[k] : k] = X[static_cast<std::ptrdiff_t>(k) * S + c];

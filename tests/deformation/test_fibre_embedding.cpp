@@ -225,8 +225,9 @@ TEST(FibreMetrics, PennationOfTiltedFibres) {
   EXPECT_NEAR(m.length_m[2], 0.04, 1e-15);
 }
 
-// calc_fibre_metrics finds each segment midpoint's closest line point with pruning; the result
-// must be bit-identical to the plain scan (find_closest_line_parameter), here on fibres scattered
+// calc_fibre_metrics finds each segment midpoint's closest line point with pruning, and the line's
+// tangent there with the slerp's per-interval angles computed once; the result must be
+// bit-identical to the plain scan (find_closest_line_parameter) and calc_line_point's frame, here on fibres scattered
 // around a curved action line with a kink (many near-ties between segments).
 TEST(FibreMetrics, SameBitsAsThePlainClosestPointScan) {
   Points3 line(5, 3);

@@ -161,6 +161,87 @@ TEST_F(SimplicialSolve, EqualsCholmodSolveBitForBitForOneToEightColumns) {
   }
 }
 
+// One workspace across modifications that change L's pattern (a rank-one update coupling the
+// first and the last unknown adds fill; the downdate keeps it): the solve's 16-bit copy of L's
+// row indices follows, and every solve keeps CHOLMOD's bits.
+TEST_F(SimplicialSolve, ReusedWorkspaceFollowsPatternChanges) {
+  SimplicialSolveWorkspace ws;
+  auto expect_cholmod_bits = [&](const char* stage) {
+    for (int ncols : {3, 6}) {
+      const std::vector<double> B = make_rhs(ncols, 70u + ncols);
+      std::vector<double> X = B;
+      ASSERT_TRUE(solve_simplicial_ldlt(L_, X.data(), ncols, A_.n, ws));
+      const std::vector<double> expected = cholmod_solution(B, ncols);
+      EXPECT_EQ(std::memcmp(X.data(), expected.data(), X.size() * sizeof(double)), 0) << stage << ", " << ncols;
+    }
+  };
+  expect_cholmod_bits("before");
+  std::size_t entries_before = 0;
+  for (std::size_t j = 0; j < L_->n; ++j) entries_before += static_cast<const int*>(L_->nz)[j];
+  cholmod_sparse* C = cholmod_allocate_sparse(L_->n, 1, 2, 1, 1, 0, CHOLMOD_REAL, &c_);
+  static_cast<int*>(C->p)[0] = 0;
+  static_cast<int*>(C->p)[1] = 2;
+  static_cast<int*>(C->i)[0] = 0;
+  static_cast<int*>(C->i)[1] = static_cast<int>(L_->n) - 1;
+  static_cast<double*>(C->x)[0] = static_cast<double*>(C->x)[1] = 30.0;
+  ASSERT_TRUE(cholmod_updown(1, C, L_, &c_));
+  std::size_t entries_after = 0;
+  for (std::size_t j = 0; j < L_->n; ++j) entries_after += static_cast<const int*>(L_->nz)[j];
+  EXPECT_GT(entries_after, entries_before);  // the update added fill
+  expect_cholmod_bits("after the update");
+  ASSERT_TRUE(cholmod_updown(0, C, L_, &c_));
+  expect_cholmod_bits("after the downdate");
+  cholmod_free_sparse(&C, &c_);
+}
+
+// Right-hand sides stored by rows (4 or 8 doubles per unknown, the unused lanes left alone): the
+// same bits as the column solve, and so as CHOLMOD's, for 1 to 8 columns; rows already in the
+// factor's order too; wrong widths refused.
+TEST_F(SimplicialSolve, RowStorageGivesTheColumnSolvesBits) {
+  SimplicialSolveWorkspace rows_ws, columns_ws;
+  for (int ncols = 1; ncols <= 8; ++ncols) {
+    const int width = ncols <= 4 ? 4 : 8;
+    const std::vector<double> B = make_rhs(ncols, 90u + ncols);
+    std::vector<double> columns = B;
+    ASSERT_TRUE(solve_simplicial_ldlt(L_, columns.data(), ncols, A_.n, columns_ws));
+    std::vector<double> rows(static_cast<std::size_t>(A_.n) * width, -3.0);
+    for (int k = 0; k < A_.n; ++k)
+      for (int c = 0; c < ncols; ++c) rows[static_cast<std::size_t>(k) * width + c] = B[static_cast<std::size_t>(c) * A_.n + k];
+    ASSERT_TRUE(solve_simplicial_ldlt_rows(L_, rows.data(), ncols, width, rows_ws));
+    for (int k = 0; k < A_.n; ++k) {
+      for (int c = 0; c < ncols; ++c) {
+        const double a = rows[static_cast<std::size_t>(k) * width + c], b = columns[static_cast<std::size_t>(c) * A_.n + k];
+        ASSERT_EQ(std::memcmp(&a, &b, sizeof(double)), 0) << ncols << " columns, row " << k << ", column " << c;
+      }
+      for (int c = ncols; c < width; ++c) ASSERT_EQ(rows[static_cast<std::size_t>(k) * width + c], -3.0);
+    }
+  }
+  // rows already in the factor's order (row k: unknown Perm[k]), solved in place: the same bits
+  const int* perm = static_cast<const int*>(L_->Perm);
+  for (int ncols : {3, 6}) {
+    const int width = ncols <= 4 ? 4 : 8;
+    const std::vector<double> B = make_rhs(ncols, 120u + ncols);
+    std::vector<double> natural(static_cast<std::size_t>(A_.n) * width, 0.0), permuted = natural;
+    for (int k = 0; k < A_.n; ++k)
+      for (int c = 0; c < ncols; ++c) {
+        natural[static_cast<std::size_t>(k) * width + c] = B[static_cast<std::size_t>(c) * A_.n + k];
+        permuted[static_cast<std::size_t>(k) * width + c] = B[static_cast<std::size_t>(c) * A_.n + perm[k]];
+      }
+    ASSERT_TRUE(solve_simplicial_ldlt_rows(L_, natural.data(), ncols, width, rows_ws));
+    ASSERT_TRUE(solve_simplicial_ldlt_in_factor_order(L_, permuted.data(), ncols, width, columns_ws));
+    for (int k = 0; k < A_.n; ++k)
+      for (int c = 0; c < ncols; ++c)
+        ASSERT_EQ(std::memcmp(&permuted[static_cast<std::size_t>(k) * width + c],
+                              &natural[static_cast<std::size_t>(perm[k]) * width + c], sizeof(double)), 0)
+            << ncols << " columns, row " << k;
+  }
+  std::vector<double> rows(static_cast<std::size_t>(A_.n) * 8, 1.0);
+  EXPECT_FALSE(solve_simplicial_ldlt_in_factor_order(L_, rows.data(), 6, 4, rows_ws));
+  EXPECT_FALSE(solve_simplicial_ldlt_rows(L_, rows.data(), 3, 8, rows_ws));  // 3 columns need width 4
+  EXPECT_FALSE(solve_simplicial_ldlt_rows(L_, rows.data(), 6, 4, rows_ws));
+  EXPECT_FALSE(solve_simplicial_ldlt_rows(nullptr, rows.data(), 3, 4, rows_ws));
+}
+
 TEST_F(SimplicialSolve, LeadingDimensionLeavesTheGapUntouched) {
   const int ld = A_.n + 5, ncols = 3;
   const std::vector<double> packed = make_rhs(ncols, 5u);
