@@ -54,6 +54,13 @@ EdgeTable make_edge_table(const Triangles& F) {
   return t;
 }
 
+// Makes v hold at least n elements; never shrinks (so the per-cluster calls on meshes of varying
+// size neither reallocate nor zero-fill: every element a call reads it has written first).
+template <class T>
+void grow(std::vector<T>& v, std::size_t n) {
+  if (v.size() < n) v.resize(n);
+}
+
 // Per-point work arrays of calc_mean_value_coordinates (one set per call; no shared state).
 struct MvcScratch {
   std::vector<double> d, ux, uy, uz;           // per vertex: distance and unit direction from x
@@ -80,7 +87,7 @@ inline double calc_short_chord_angle(double l) {
 // d_j = |v_j - x| and u_j = (v_j - x) / d_j: the robust per-triangle formula of Ju, Schaefer and
 // Warren (2005, section 3.3). Returns true when x lies on the triangle (w then holds its
 // barycentric coordinates, normalised, and nothing else).
-bool add_triangle_weights(const Triangles& F, Eigen::Index f, const MvcScratch& s, VecX& w) {
+bool add_triangle_weights(const Triangles& F, Eigen::Index f, const MvcScratch& s, Eigen::Ref<VecX> w) {
   const int id[3] = {F(f, 0), F(f, 1), F(f, 2)};
   const auto u = [&](int j) { return Vec3(s.ux[j], s.uy[j], s.uz[j]); };
   // θ_i = 2 asin(l_i / 2) for the chord l_i between the unit vectors; then exactly
@@ -138,13 +145,13 @@ bool add_triangle_weights(const Triangles& F, Eigen::Index f, const MvcScratch& 
 __attribute__((target_clones("avx512f", "avx2", "default")))
 #endif
 bool accumulate_mean_value_weights(const TriMesh& mesh, const EdgeTable& table, const Vec3& x, double eps,
-                                   MvcScratch& s, VecX& w) {
+                                   MvcScratch& s, Eigen::Ref<VecX> w) {
   const Eigen::Index n = mesh.V.rows();
   const auto nu = static_cast<std::size_t>(n);
-  s.d.resize(nu);
-  s.ux.resize(nu);
-  s.uy.resize(nu);
-  s.uz.resize(nu);
+  grow(s.d, nu);
+  grow(s.ux, nu);
+  grow(s.uy, nu);
+  grow(s.uz, nu);
   const double* vx = mesh.V.col(0).data();
   const double* vy = mesh.V.col(1).data();
   const double* vz = mesh.V.col(2).data();
@@ -172,10 +179,10 @@ bool accumulate_mean_value_weights(const TriMesh& mesh, const EdgeTable& table, 
     uz[j] /= d[j];
   }
   const std::size_t ne = table.edge_a.size();
-  s.theta.resize(ne);
-  s.nx.resize(ne);
-  s.ny.resize(ne);
-  s.nz.resize(ne);
+  grow(s.theta, ne);
+  grow(s.nx, ne);
+  grow(s.ny, ne);
+  grow(s.nz, ne);
   const int* ea = table.edge_a.data();
   const int* eb = table.edge_b.data();
   double* __restrict theta = s.theta.data();
@@ -210,8 +217,8 @@ bool accumulate_mean_value_weights(const TriMesh& mesh, const EdgeTable& table, 
   // need the per-triangle formula; then the scatter into w, in face order, with flagged faces
   // handled in place (same sums in the same order as a single loop)
   const std::size_t nfaces = static_cast<std::size_t>(mesh.F.rows());
-  s.contribution.resize(3 * nfaces);
-  s.robust.resize(nfaces);
+  grow(s.contribution, 3 * nfaces);
+  grow(s.robust, nfaces);
   const int* F0 = mesh.F.col(0).data();
   const int* F1 = mesh.F.col(1).data();
   const int* F2 = mesh.F.col(2).data();
@@ -527,15 +534,17 @@ bool calc_clustered_weights(const TriMesh& mesh, const ClusteredSurface& cs, con
         far += calc_far_field_sum(c.far, y);
         continue;
       }
-      s.local_w.setZero(c.local.V.rows());
-      if (accumulate_mean_value_weights(c.local, c.table, x, eps, s.mvc, s.local_w)) {
+      const Eigen::Index nl = c.local.V.rows();
+      if (s.local_w.size() < nl) s.local_w.resize(std::max(nl, 2 * s.local_w.size()));
+      s.local_w.head(nl).setZero();
+      if (accumulate_mean_value_weights(c.local, c.table, x, eps, s.mvc, s.local_w.head(nl))) {
         // x on a vertex or triangle of this cluster: those coordinates are the answer
         for (int g : s.touched) {
           s.w[g] = 0.0;
           s.covered[static_cast<std::size_t>(g)] = 0;
         }
         s.touched.clear();
-        for (Eigen::Index l = 0; l < s.local_w.size(); ++l)
+        for (Eigen::Index l = 0; l < nl; ++l)
           if (s.local_w[l] != 0.0) out.emplace_back(c.vertex[static_cast<std::size_t>(l)], s.local_w[l]);
         std::sort(out.begin(), out.end());
         on_surface = true;
@@ -686,8 +695,9 @@ std::vector<Points3> calc_embedded_fibres(const FibreEmbedding& embedding,
   if (line.num_samples() < 2 || solver.get_skinned_vertices().rows() != embedding.weights.cols())
     throw_usage("calc_embedded_fibres needs a solver that has solved a frame of this muscle");
   Points3 P = embedding.weights * (solver.get_vertices() - solver.get_skinned_vertices());
+  const LinePointInterpolator line_point(line);
   for (Eigen::Index p = 0; p < P.rows(); ++p) {
-    const LinePoint lp = calc_line_point(line, embedding.point_s[p]);
+    const LinePoint lp = line_point(embedding.point_s[p]);
     P.row(p) += (lp.point + lp.frame * Vec3(embedding.point_offset_local.row(p).transpose())).transpose();
   }
   return split_fibres(embedding, P);
@@ -771,6 +781,7 @@ double find_closest_line_fraction(const LineSegments& segments, const Vec3& p, i
 FibreMetrics calc_fibre_metrics(const std::vector<Points3>& fibres, const Points3& action_line) {
   const FramedLine line = calc_framed_line(action_line, 64, calc_default_start_frame(action_line));
   const LineSegments segments(line);
+  const LinePointInterpolator line_point(line);
   FibreMetrics m;
   const Eigen::Index n = static_cast<Eigen::Index>(fibres.size());
   m.length_m = VecX::Zero(n);
@@ -784,7 +795,7 @@ FibreMetrics calc_fibre_metrics(const std::vector<Points3>& fibres, const Points
       const double l = seg.norm();
       if (!(l > 0.0)) continue;
       const Vec3 mid = 0.5 * (P.row(i) + P.row(i + 1)).transpose();
-      const Vec3 t = calc_line_point(line, find_closest_line_fraction(segments, mid, hint)).frame * Vec3::UnitX();
+      const Vec3 t = line_point(find_closest_line_fraction(segments, mid, hint)).frame * Vec3::UnitX();
       angle_sum += l * std::acos(std::min(1.0, std::abs(t.dot(seg) / l)));
       length += l;
     }
