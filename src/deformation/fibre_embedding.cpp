@@ -694,7 +694,27 @@ std::vector<Points3> calc_embedded_fibres(const FibreEmbedding& embedding,
   const FramedLine& line = solver.get_line();
   if (line.num_samples() < 2 || solver.get_skinned_vertices().rows() != embedding.weights.cols())
     throw_usage("calc_embedded_fibres needs a solver that has solved a frame of this muscle");
-  Points3 P = embedding.weights * (solver.get_vertices() - solver.get_skinned_vertices());
+  // P = weights * (X - S): row p sums w_pj (x_j - s_j) over the row's entries in column order,
+  // as Eigen's row-major product on the evaluated difference does, in one pass for x, y and z
+  const Points3& X = solver.get_vertices();
+  const Points3& S = solver.get_skinned_vertices();
+  const Eigen::Index n = X.rows();
+  const double* x = X.data();
+  const double* sk = S.data();
+  Points3 P(embedding.weights.rows(), 3);
+  for (Eigen::Index p = 0; p < P.rows(); ++p) {
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0;
+    for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(embedding.weights, p); it; ++it) {
+      const double w = it.value();
+      const Eigen::Index j = it.index();
+      s0 += w * (x[j] - sk[j]);
+      s1 += w * (x[j + n] - sk[j + n]);
+      s2 += w * (x[j + 2 * n] - sk[j + 2 * n]);
+    }
+    P(p, 0) = s0;
+    P(p, 1) = s1;
+    P(p, 2) = s2;
+  }
   const LinePointInterpolator line_point(line);
   for (Eigen::Index p = 0; p < P.rows(); ++p) {
     const LinePoint lp = line_point(embedding.point_s[p]);

@@ -586,30 +586,40 @@ Eigen::MatrixXd SurfaceFirstSolver::solve(const Eigen::MatrixXd& rhs) const {
       throw_internal("surface-first: sparse low-rank columns without a supernodal LL^T factor");
     const auto r = static_cast<Eigen::Index>(f.F.size());
     const int* super = active.tree_super();
+    // t = F^T z and z -= F u, each column of F read once for all right-hand sides (every entry
+    // the same sum, in the same order, as column by column)
+    constexpr int kMaxColumns = 8;
+    double acc[kMaxColumns];
+    const auto columns_at_once = static_cast<int>(std::min<Eigen::Index>(nc, kMaxColumns));
     Eigen::MatrixXd t(r, nc);
     for (Eigen::Index k = 0; k < r; ++k) {
       const UnitForwardColumn& col = *f.F[static_cast<std::size_t>(k)];
-      for (Eigen::Index c = 0; c < nc; ++c) {
-        const double* zc = z.data() + c * n;
-        double sum = 0.0;
+      for (Eigen::Index c0 = 0; c0 < nc; c0 += columns_at_once) {
+        const int m = static_cast<int>(std::min<Eigen::Index>(columns_at_once, nc - c0));
+        std::fill(acc, acc + m, 0.0);
         for (std::size_t q = 0; q < col.chain.size(); ++q) {
           const double* v = col.values.data() + col.offset[q];
           const int k0 = super[col.chain[q]], len = col.offset[q + 1] - col.offset[q];
-          for (int i = 0; i < len; ++i) sum += v[i] * zc[k0 + i];
+          for (int c = 0; c < m; ++c) {
+            const double* zc = z.data() + (c0 + c) * n + k0;
+            double sum = acc[c];
+            for (int i = 0; i < len; ++i) sum += v[i] * zc[i];
+            acc[c] = sum;
+          }
         }
-        t(k, c) = sum;
+        for (int c = 0; c < m; ++c) t(k, c0 + c) = acc[c];
       }
     }
     const Eigen::MatrixXd u = f.capacitance.solve(t);
     for (Eigen::Index k = 0; k < r; ++k) {
       const UnitForwardColumn& col = *f.F[static_cast<std::size_t>(k)];
-      for (Eigen::Index c = 0; c < nc; ++c) {
-        double* zc = z.data() + c * n;
-        const double uk = u(k, c);
-        for (std::size_t q = 0; q < col.chain.size(); ++q) {
-          const double* v = col.values.data() + col.offset[q];
-          const int k0 = super[col.chain[q]], len = col.offset[q + 1] - col.offset[q];
-          for (int i = 0; i < len; ++i) zc[k0 + i] -= v[i] * uk;
+      for (std::size_t q = 0; q < col.chain.size(); ++q) {
+        const double* v = col.values.data() + col.offset[q];
+        const int k0 = super[col.chain[q]], len = col.offset[q + 1] - col.offset[q];
+        for (Eigen::Index c = 0; c < nc; ++c) {
+          double* zc = z.data() + c * n + k0;
+          const double uk = u(k, c);
+          for (int i = 0; i < len; ++i) zc[i] -= v[i] * uk;
         }
       }
     }
@@ -754,7 +764,8 @@ int SurfaceFirstSolver::solve_volume(const Points3& rhs_free, const Points3& fix
     }
   };
   // the volume gradient's free rows at the interleaved points P (calc_volume_gradient's bits)
-  std::vector<double> G(n3);
+  std::vector<double>& G = gradient_scratch_;
+  G.resize(n3);
   const auto free_gradient = [&](const std::vector<double>& P) {
     std::fill(G.begin(), G.end(), 0.0);
     add_volume_gradient_times_six(P.data(), F, G.data());
@@ -770,7 +781,11 @@ int SurfaceFirstSolver::solve_volume(const Points3& rhs_free, const Points3& fix
 
   // first solve: the unconstrained minimiser, and a direction: the previous frame's (contact-free
   // factor only) or K^-1 g at the warm-start point
-  std::vector<double> X0(n3), Y, P(n3);
+  std::vector<double>& X0 = start_scratch_;
+  std::vector<double>& P = iterate_scratch_;
+  X0.resize(n3);
+  P.resize(n3);
+  std::vector<double> Y;
   for (std::size_t k = 0; k < b.fixed_vertices.size(); ++k)
     for (int c = 0; c < 3; ++c)
       X0[3 * static_cast<std::size_t>(b.fixed_vertices[k]) + c] = fixed(static_cast<Eigen::Index>(k), c);

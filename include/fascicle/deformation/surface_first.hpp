@@ -200,6 +200,8 @@ class SurfaceFirstSolver {
   // warm start of the volume iteration: the last direction Y = K^-1 g (contact-free factor;
   // interleaved, 3 #V values) and g
   std::vector<double> last_direction_;
+  // scratch of solve_volume (interleaved, 3 #V values; every entry written before it is read)
+  std::vector<double> start_scratch_, iterate_scratch_, gradient_scratch_;
   Points3 last_gradient_;
   bool has_previous_ = false;
   SurfaceFrameInfo info_;
