@@ -108,6 +108,75 @@ int calc_winding_by_ray(const MeshQuery& surface, const Vec3& p) {
 
 }  // namespace
 
+bool OutsideCells::contains_outside(const Vec3& p) const {
+  const Eigen::Array3d q = (p - box.min()).array() * inverse_cell;
+  if (!(q.minCoeff() >= 0.0) || !(q < dims.cast<double>()).all()) return false;
+  const Eigen::Array3i c = q.floor().cast<int>().min(dims - 1);
+  return outside[static_cast<std::size_t>(c[0] + dims[0] * (c[1] + dims[1] * c[2]))] != 0;
+}
+
+OutsideCells make_outside_cells(const TriMesh& surface, int cells_per_axis) {
+  OutsideCells g;
+  if (surface.V.rows() == 0 || surface.F.rows() == 0 || cells_per_axis < 1) return g;
+  const Vec3 lo = surface.V.colwise().minCoeff().transpose(), hi = surface.V.colwise().maxCoeff().transpose();
+  const double cell = std::max((hi - lo).maxCoeff(), 1e-300) / cells_per_axis;
+  // two cells of margin on every side: the boundary layer then lies more than a cell (far more
+  // than the padding below) from every triangle
+  g.box = Eigen::AlignedBox3d(lo - Vec3::Constant(2.0 * cell), hi + Vec3::Constant(2.0 * cell));
+  g.inverse_cell = 1.0 / cell;
+  g.dims = ((g.box.max() - g.box.min()).array() * g.inverse_cell).ceil().cast<int>().max(1);
+  const Eigen::Array3i& d = g.dims;
+  const auto index = [&](int x, int y, int z) { return static_cast<std::size_t>(x + d[0] * (y + d[1] * z)); };
+  // touched: every cell a triangle's box, padded far beyond the rounding of the cell lookups,
+  // reaches (1: touched, 2: outside, 0: not yet known)
+  std::vector<unsigned char> state(static_cast<std::size_t>(d.prod()), 0);
+  const double pad = 1e-6 * (hi - lo).norm() + 1e-300;
+  for (Eigen::Index f = 0; f < surface.F.rows(); ++f) {
+    Vec3 a = surface.V.row(surface.F(f, 0)).transpose(), b = a;
+    for (int k = 1; k < 3; ++k) {
+      a = a.cwiseMin(surface.V.row(surface.F(f, k)).transpose());
+      b = b.cwiseMax(surface.V.row(surface.F(f, k)).transpose());
+    }
+    const Eigen::Array3i c0 =
+        ((a.array() - pad - g.box.min().array()) * g.inverse_cell).floor().cast<int>().max(0).min(d - 1);
+    const Eigen::Array3i c1 =
+        ((b.array() + pad - g.box.min().array()) * g.inverse_cell).floor().cast<int>().max(0).min(d - 1);
+    for (int z = c0[2]; z <= c1[2]; ++z)
+      for (int y = c0[1]; y <= c1[1]; ++y)
+        for (int x = c0[0]; x <= c1[0]; ++x) state[index(x, y, z)] = 1;
+  }
+  // flood fill of the untouched cells from the (untouched) boundary layer through face
+  // neighbours; it starts from the untouched cells next to that layer, so every cell it visits has
+  // all six neighbours in the grid.
+  const int sx = 1, sy = d[0], sz = d[0] * d[1];
+  std::vector<int> stack;
+  for (int z = 0; z < d[2]; ++z)
+    for (int y = 0; y < d[1]; ++y)
+      for (int x = 0; x < d[0]; ++x) {
+        const bool boundary = x == 0 || y == 0 || z == 0 || x == d[0] - 1 || y == d[1] - 1 || z == d[2] - 1;
+        const bool next_to_boundary = x <= 1 || y <= 1 || z <= 1 || x >= d[0] - 2 || y >= d[1] - 2 || z >= d[2] - 2;
+        unsigned char& st = state[index(x, y, z)];
+        if (boundary) st = 2;
+        else if (next_to_boundary && st == 0) {
+          st = 2;
+          stack.push_back(static_cast<int>(index(x, y, z)));
+        }
+      }
+  while (!stack.empty()) {
+    const int c = stack.back();
+    stack.pop_back();
+    for (const int nb : {c - sx, c + sx, c - sy, c + sy, c - sz, c + sz}) {
+      unsigned char& st = state[static_cast<std::size_t>(nb)];
+      if (st != 0) continue;
+      st = 2;
+      stack.push_back(nb);
+    }
+  }
+  g.outside.resize(state.size());
+  for (std::size_t k = 0; k < state.size(); ++k) g.outside[k] = state[k] == 2 ? 1 : 0;
+  return g;
+}
+
 VertexAdjacency make_vertex_adjacency(const Triangles& F, Eigen::Index num_vertices) {
   VertexAdjacency g;
   g.start.assign(static_cast<std::size_t>(num_vertices) + 1, 0);
@@ -497,6 +566,7 @@ SurfaceFirstSolver::SurfaceFirstSolver(const SurfaceBinding& binding, BoneQuerie
   for (const MeshQuery* bone : bones_) {
     const Points3& V = bone->get_mesh().V;
     bone_boxes_.push_back(calc_padded_box(V));
+    bone_outside_cells_.push_back(make_outside_cells(bone->get_mesh()));
   }
   Factor& f = *factor_;
   f.base.kind = f.with_contacts.kind = binding_.options.sparse_solver;
@@ -868,12 +938,13 @@ bool SurfaceFirstSolver::update_contacts(const Points3& X, const std::vector<Tra
     const Transform Tinv = T.inverse();
     const Points3 P = ((X * Tinv.linear().transpose()).rowwise() + Tinv.translation().transpose()).eval();
     const Eigen::AlignedBox3d& box = bone_boxes_[k];
+    const OutsideCells& cells = bone_outside_cells_[k];
     bool any_unknown = false;
     for (Eigen::Index i = 0; i < n; ++i) {
       const Vec3 p = P.row(i).transpose();
       const double clearance = b.rest_bone_clearance[k][i];
       const bool outside = (clearance > 0.0 && (p - b.rest.V.row(i).transpose()).squaredNorm() < clearance * clearance) ||
-                           !box.contains(p);
+                           !box.contains(p) || cells.contains_outside(p);
       winding[i] = outside ? 0 : -1;
       any_unknown |= !outside;
     }
