@@ -131,16 +131,23 @@ OutsideCells make_outside_cells(const TriMesh& surface, int cells_per_axis) {
   // reaches (1: touched, 2: outside, 0: not yet known)
   std::vector<unsigned char> state(static_cast<std::size_t>(d.prod()), 0);
   const double pad = 1e-6 * (hi - lo).norm() + 1e-300;
-  for (Eigen::Index f = 0; f < surface.F.rows(); ++f) {
-    Vec3 a = surface.V.row(surface.F(f, 0)).transpose(), b = a;
-    for (int k = 1; k < 3; ++k) {
-      a = a.cwiseMin(surface.V.row(surface.F(f, k)).transpose());
-      b = b.cwiseMax(surface.V.row(surface.F(f, k)).transpose());
+  // per vertex, the cells of its padded position's lowest and highest corner (a triangle's padded
+  // box spans the smallest to the largest of its corners': floor and rounding are monotone)
+  const Eigen::Index nv = surface.V.rows();
+  std::vector<std::array<int, 3>> low(static_cast<std::size_t>(nv)), high(static_cast<std::size_t>(nv));
+  for (Eigen::Index v = 0; v < nv; ++v)
+    for (int k = 0; k < 3; ++k) {
+      const double x = surface.V(v, k) - g.box.min()[k];
+      low[static_cast<std::size_t>(v)][k] = std::clamp(static_cast<int>(std::floor((x - pad) * g.inverse_cell)), 0, d[k] - 1);
+      high[static_cast<std::size_t>(v)][k] = std::clamp(static_cast<int>(std::floor((x + pad) * g.inverse_cell)), 0, d[k] - 1);
     }
-    const Eigen::Array3i c0 =
-        ((a.array() - pad - g.box.min().array()) * g.inverse_cell).floor().cast<int>().max(0).min(d - 1);
-    const Eigen::Array3i c1 =
-        ((b.array() + pad - g.box.min().array()) * g.inverse_cell).floor().cast<int>().max(0).min(d - 1);
+  for (Eigen::Index f = 0; f < surface.F.rows(); ++f) {
+    std::array<int, 3> c0 = low[static_cast<std::size_t>(surface.F(f, 0))], c1 = high[static_cast<std::size_t>(surface.F(f, 0))];
+    for (int corner = 1; corner < 3; ++corner)
+      for (int k = 0; k < 3; ++k) {
+        c0[k] = std::min(c0[k], low[static_cast<std::size_t>(surface.F(f, corner))][k]);
+        c1[k] = std::max(c1[k], high[static_cast<std::size_t>(surface.F(f, corner))][k]);
+      }
     for (int z = c0[2]; z <= c1[2]; ++z)
       for (int y = c0[1]; y <= c1[1]; ++y)
         for (int x = c0[0]; x <= c1[0]; ++x) state[index(x, y, z)] = 1;
