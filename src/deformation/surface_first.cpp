@@ -152,32 +152,22 @@ OutsideCells make_outside_cells(const TriMesh& surface, int cells_per_axis) {
       for (int y = c0[1]; y <= c1[1]; ++y)
         for (int x = c0[0]; x <= c1[0]; ++x) state[index(x, y, z)] = 1;
   }
-  // flood fill of the untouched cells from the (untouched) boundary layer through face
-  // neighbours; it starts from the untouched cells next to that layer, so every cell it visits has
-  // all six neighbours in the grid.
-  const int sx = 1, sy = d[0], sz = d[0] * d[1];
-  std::vector<int> stack;
-  for (int z = 0; z < d[2]; ++z)
-    for (int y = 0; y < d[1]; ++y)
-      for (int x = 0; x < d[0]; ++x) {
-        const bool boundary = x == 0 || y == 0 || z == 0 || x == d[0] - 1 || y == d[1] - 1 || z == d[2] - 1;
-        const bool next_to_boundary = x <= 1 || y <= 1 || z <= 1 || x >= d[0] - 2 || y >= d[1] - 2 || z >= d[2] - 2;
-        unsigned char& st = state[index(x, y, z)];
-        if (boundary) st = 2;
-        else if (next_to_boundary && st == 0) {
-          st = 2;
-          stack.push_back(static_cast<int>(index(x, y, z)));
-        }
+  // outside: the untouched cells that a straight run of untouched cells along x, y or z joins to
+  // the grid's (untouched) boundary layer. (A flood fill through face neighbours would also find
+  // the pockets reachable only around corners, at several times the cost of these sweeps.)
+  const std::array<int, 3> stride{1, d[0], d[0] * d[1]};
+  for (int axis = 0; axis < 3; ++axis) {
+    const int a1 = (axis + 1) % 3, a2 = (axis + 2) % 3;
+    const int len = d[axis], step = stride[static_cast<std::size_t>(axis)];
+    for (int v = 0; v < d[a2]; ++v)
+      for (int u = 0; u < d[a1]; ++u) {
+        const std::size_t first = static_cast<std::size_t>(u) * static_cast<std::size_t>(stride[static_cast<std::size_t>(a1)]) +
+                                  static_cast<std::size_t>(v) * static_cast<std::size_t>(stride[static_cast<std::size_t>(a2)]);
+        int t = 0;
+        for (; t < len && state[first + static_cast<std::size_t>(t) * step] != 1; ++t) state[first + static_cast<std::size_t>(t) * step] = 2;
+        for (int r = len - 1; r > t && state[first + static_cast<std::size_t>(r) * step] != 1; --r)
+          state[first + static_cast<std::size_t>(r) * step] = 2;
       }
-  while (!stack.empty()) {
-    const int c = stack.back();
-    stack.pop_back();
-    for (const int nb : {c - sx, c + sx, c - sy, c + sy, c - sz, c + sz}) {
-      unsigned char& st = state[static_cast<std::size_t>(nb)];
-      if (st != 0) continue;
-      st = 2;
-      stack.push_back(nb);
-    }
   }
   g.outside.resize(state.size());
   for (std::size_t k = 0; k < state.size(); ++k) g.outside[k] = state[k] == 2 ? 1 : 0;

@@ -102,10 +102,10 @@ struct SurfaceBinding {
 };
 
 // The cells of a uniform grid over a closed surface's box that lie certainly outside the surface:
-// cells that no triangle's (padded) bounding box touches and that connect through such cells to
-// the grid's boundary layer. The surface crosses none of them, and the winding number is constant
-// on a region the surface does not cross and 0 outside its box, so a point in such a cell is
-// outside (exact culling for the inside tests of bone contacts).
+// cells that no triangle's (padded) bounding box touches and that a straight run of such cells
+// along x, y or z joins to the grid's boundary layer. The surface crosses none of them, and the
+// winding number is constant on a region the surface does not cross and 0 outside its box, so a
+// point in such a cell is outside (exact culling for the inside tests of bone contacts).
 struct OutsideCells {
   Eigen::AlignedBox3d box;                     // the grid (the surface's box plus two cells)
   Eigen::Array3i dims = Eigen::Array3i::Zero();
