@@ -108,72 +108,6 @@ int calc_winding_by_ray(const MeshQuery& surface, const Vec3& p) {
 
 }  // namespace
 
-bool OutsideCells::contains_outside(const Vec3& p) const {
-  const Eigen::Array3d q = (p - box.min()).array() * inverse_cell;
-  if (!(q.minCoeff() >= 0.0) || !(q < dims.cast<double>()).all()) return false;
-  const Eigen::Array3i c = q.floor().cast<int>().min(dims - 1);
-  return outside[static_cast<std::size_t>(c[0] + dims[0] * (c[1] + dims[1] * c[2]))] != 0;
-}
-
-OutsideCells make_outside_cells(const TriMesh& surface, int cells_per_axis) {
-  OutsideCells g;
-  if (surface.V.rows() == 0 || surface.F.rows() == 0 || cells_per_axis < 1) return g;
-  const Vec3 lo = surface.V.colwise().minCoeff().transpose(), hi = surface.V.colwise().maxCoeff().transpose();
-  const double cell = std::max((hi - lo).maxCoeff(), 1e-300) / cells_per_axis;
-  // two cells of margin on every side: the boundary layer then lies more than a cell (far more
-  // than the padding below) from every triangle
-  g.box = Eigen::AlignedBox3d(lo - Vec3::Constant(2.0 * cell), hi + Vec3::Constant(2.0 * cell));
-  g.inverse_cell = 1.0 / cell;
-  g.dims = ((g.box.max() - g.box.min()).array() * g.inverse_cell).ceil().cast<int>().max(1);
-  const Eigen::Array3i& d = g.dims;
-  const auto index = [&](int x, int y, int z) { return static_cast<std::size_t>(x + d[0] * (y + d[1] * z)); };
-  // touched: every cell a triangle's box, padded far beyond the rounding of the cell lookups,
-  // reaches (1: touched, 2: outside, 0: not yet known)
-  std::vector<unsigned char> state(static_cast<std::size_t>(d.prod()), 0);
-  const double pad = 1e-6 * (hi - lo).norm() + 1e-300;
-  // per vertex, the cells of its padded position's lowest and highest corner (a triangle's padded
-  // box spans the smallest to the largest of its corners': floor and rounding are monotone)
-  const Eigen::Index nv = surface.V.rows();
-  std::vector<std::array<int, 3>> low(static_cast<std::size_t>(nv)), high(static_cast<std::size_t>(nv));
-  for (Eigen::Index v = 0; v < nv; ++v)
-    for (int k = 0; k < 3; ++k) {
-      const double x = surface.V(v, k) - g.box.min()[k];
-      low[static_cast<std::size_t>(v)][k] = std::clamp(static_cast<int>(std::floor((x - pad) * g.inverse_cell)), 0, d[k] - 1);
-      high[static_cast<std::size_t>(v)][k] = std::clamp(static_cast<int>(std::floor((x + pad) * g.inverse_cell)), 0, d[k] - 1);
-    }
-  for (Eigen::Index f = 0; f < surface.F.rows(); ++f) {
-    std::array<int, 3> c0 = low[static_cast<std::size_t>(surface.F(f, 0))], c1 = high[static_cast<std::size_t>(surface.F(f, 0))];
-    for (int corner = 1; corner < 3; ++corner)
-      for (int k = 0; k < 3; ++k) {
-        c0[k] = std::min(c0[k], low[static_cast<std::size_t>(surface.F(f, corner))][k]);
-        c1[k] = std::max(c1[k], high[static_cast<std::size_t>(surface.F(f, corner))][k]);
-      }
-    for (int z = c0[2]; z <= c1[2]; ++z)
-      for (int y = c0[1]; y <= c1[1]; ++y)
-        for (int x = c0[0]; x <= c1[0]; ++x) state[index(x, y, z)] = 1;
-  }
-  // outside: the untouched cells that a straight run of untouched cells along x, y or z joins to
-  // the grid's (untouched) boundary layer. (A flood fill through face neighbours would also find
-  // the pockets reachable only around corners, at several times the cost of these sweeps.)
-  const std::array<int, 3> stride{1, d[0], d[0] * d[1]};
-  for (int axis = 0; axis < 3; ++axis) {
-    const int a1 = (axis + 1) % 3, a2 = (axis + 2) % 3;
-    const int len = d[axis], step = stride[static_cast<std::size_t>(axis)];
-    for (int v = 0; v < d[a2]; ++v)
-      for (int u = 0; u < d[a1]; ++u) {
-        const std::size_t first = static_cast<std::size_t>(u) * static_cast<std::size_t>(stride[static_cast<std::size_t>(a1)]) +
-                                  static_cast<std::size_t>(v) * static_cast<std::size_t>(stride[static_cast<std::size_t>(a2)]);
-        int t = 0;
-        for (; t < len && state[first + static_cast<std::size_t>(t) * step] != 1; ++t) state[first + static_cast<std::size_t>(t) * step] = 2;
-        for (int r = len - 1; r > t && state[first + static_cast<std::size_t>(r) * step] != 1; --r)
-          state[first + static_cast<std::size_t>(r) * step] = 2;
-      }
-  }
-  g.outside.resize(state.size());
-  for (std::size_t k = 0; k < state.size(); ++k) g.outside[k] = state[k] == 2 ? 1 : 0;
-  return g;
-}
-
 VertexAdjacency make_vertex_adjacency(const Triangles& F, Eigen::Index num_vertices) {
   VertexAdjacency g;
   g.start.assign(static_cast<std::size_t>(num_vertices) + 1, 0);
@@ -563,7 +497,6 @@ SurfaceFirstSolver::SurfaceFirstSolver(const SurfaceBinding& binding, BoneQuerie
   for (const MeshQuery* bone : bones_) {
     const Points3& V = bone->get_mesh().V;
     bone_boxes_.push_back(calc_padded_box(V));
-    bone_outside_cells_.push_back(make_outside_cells(bone->get_mesh()));
   }
   Factor& f = *factor_;
   f.base.kind = f.with_contacts.kind = binding_.options.sparse_solver;
@@ -935,13 +868,12 @@ bool SurfaceFirstSolver::update_contacts(const Points3& X, const std::vector<Tra
     const Transform Tinv = T.inverse();
     const Points3 P = ((X * Tinv.linear().transpose()).rowwise() + Tinv.translation().transpose()).eval();
     const Eigen::AlignedBox3d& box = bone_boxes_[k];
-    const OutsideCells& cells = bone_outside_cells_[k];
     bool any_unknown = false;
     for (Eigen::Index i = 0; i < n; ++i) {
       const Vec3 p = P.row(i).transpose();
       const double clearance = b.rest_bone_clearance[k][i];
       const bool outside = (clearance > 0.0 && (p - b.rest.V.row(i).transpose()).squaredNorm() < clearance * clearance) ||
-                           !box.contains(p) || cells.contains_outside(p);
+                           !box.contains(p);
       winding[i] = outside ? 0 : -1;
       any_unknown |= !outside;
     }

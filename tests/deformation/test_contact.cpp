@@ -41,43 +41,6 @@ Transform translate_x(double dx) {
   return T;
 }
 
-// Cells flagged outside lie outside the surface (their centres and corners, by the ray vote); the space between two nested shells (winding number 1) and inside the inner one (2)
-// is never flagged, and most of the far space is.
-TEST(OutsideCells, FlagOnlyCellsOutsideNestedShells) {
-  TriMesh shells = make_icosphere(0.03, 3);
-  const TriMesh inner = make_icosphere(0.012, 3);
-  const Eigen::Index nv = shells.V.rows();
-  shells.V.conservativeResize(nv + inner.V.rows(), 3);
-  shells.V.bottomRows(inner.V.rows()) = inner.V;
-  shells.F.conservativeResize(shells.F.rows() + inner.F.rows(), 3);
-  shells.F.bottomRows(inner.F.rows()) = inner.F.array() + static_cast<int>(nv);
-  const OutsideCells cells = make_outside_cells(shells, 32);
-  ASSERT_EQ(cells.outside.size(), static_cast<std::size_t>(cells.dims.prod()));
-  const MeshQuery query(shells);
-  const double h = 1.0 / cells.inverse_cell;
-  int flagged = 0, far = 0;
-  for (int z = 0; z < cells.dims[2]; ++z)
-    for (int y = 0; y < cells.dims[1]; ++y)
-      for (int x = 0; x < cells.dims[0]; ++x) {
-        const Vec3 lo = cells.box.min() + h * Vec3(x, y, z);
-        const Vec3 centre = lo + Vec3::Constant(0.5 * h);
-        const bool flag = cells.contains_outside(centre);
-        flagged += flag;
-        far += centre.norm() > 0.03 + h;  // the cell lies wholly outside the outer sphere
-        if (!flag) continue;
-        ASSERT_FALSE(query.calc_is_inside(centre));
-        for (int corner = 0; corner < 8; ++corner) {
-          const Vec3 p = lo + h * Vec3(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1);
-          ASSERT_FALSE(query.calc_is_inside(p)) << "cell (" << x << ", " << y << ", " << z << ")";
-        }
-      }
-  EXPECT_GT(flagged, 0.9 * far);
-  EXPECT_FALSE(cells.contains_outside(Vec3(0.02, 0.0, 0.0)));  // between the shells
-  EXPECT_FALSE(cells.contains_outside(Vec3::Zero()));          // inside both
-  EXPECT_FALSE(cells.contains_outside(Vec3(1.0, 0.0, 0.0)));   // off the grid: not decided here
-  EXPECT_TRUE(cells.contains_outside(Vec3(0.0, 0.0, 0.03 + 2.5 * h)));
-}
-
 TEST(SurfaceFirstContact, BoxPressedIntoMuscleEndsOutside) {
   const PressScene s;
   const MeshQuery bone(make_box_bone(0.025));  // 5 mm gap at rest

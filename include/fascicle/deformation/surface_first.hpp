@@ -101,22 +101,6 @@ struct SurfaceBinding {
   int num_bones() const { return static_cast<int>(rest_bone_depth.size()); }
 };
 
-// The cells of a uniform grid over a closed surface's box that lie certainly outside the surface:
-// cells that no triangle's (padded) bounding box touches and that a straight run of such cells
-// along x, y or z joins to the grid's boundary layer. The surface crosses none of them, and the
-// winding number is constant on a region the surface does not cross and 0 outside its box, so a
-// point in such a cell is outside (exact culling for the inside tests of bone contacts).
-struct OutsideCells {
-  Eigen::AlignedBox3d box;                     // the grid (the surface's box plus two cells)
-  Eigen::Array3i dims = Eigen::Array3i::Zero();
-  double inverse_cell = 0.0;                   // 1 / cell edge
-  std::vector<unsigned char> outside;          // per cell (x fastest)
-  // True when p lies in an outside cell (false outside the grid: other tests decide there).
-  bool contains_outside(const Vec3& p) const;
-};
-// Grid with cubic cells, at most `cells_per_axis` along the surface's longest box edge.
-OutsideCells make_outside_cells(const TriMesh& surface, int cells_per_axis = 128);
-
 // Bones a muscle must stay out of: meshes in their rest pose, in the same (world) frame as the
 // muscle's rest surface. Not owned; they must outlive bindings and solvers that use them.
 using BoneQueries = std::vector<const MeshQuery*>;
@@ -206,7 +190,6 @@ class SurfaceFirstSolver {
   const SurfaceBinding& binding_;
   BoneQueries bones_;
   std::vector<Eigen::AlignedBox3d> bone_boxes_;
-  std::vector<OutsideCells> bone_outside_cells_;  // per bone, in its rest pose
   std::unique_ptr<Factor> factor_;
   std::vector<Contact> contacts_;
   std::vector<int> factorised_contacts_;  // free indices with a contact in the current factor
