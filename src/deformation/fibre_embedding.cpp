@@ -54,6 +54,13 @@ EdgeTable make_edge_table(const Triangles& F) {
   return t;
 }
 
+// Makes v hold at least n elements; never shrinks (so the per-cluster calls on meshes of varying
+// size neither reallocate nor zero-fill: every element a call reads it has written first).
+template <class T>
+void grow(std::vector<T>& v, std::size_t n) {
+  if (v.size() < n) v.resize(n);
+}
+
 // Per-point work arrays of calc_mean_value_coordinates (one set per call; no shared state).
 struct MvcScratch {
   std::vector<double> d, ux, uy, uz;           // per vertex: distance and unit direction from x
@@ -80,7 +87,7 @@ inline double calc_short_chord_angle(double l) {
 // d_j = |v_j - x| and u_j = (v_j - x) / d_j: the robust per-triangle formula of Ju, Schaefer and
 // Warren (2005, section 3.3). Returns true when x lies on the triangle (w then holds its
 // barycentric coordinates, normalised, and nothing else).
-bool add_triangle_weights(const Triangles& F, Eigen::Index f, const MvcScratch& s, VecX& w) {
+bool add_triangle_weights(const Triangles& F, Eigen::Index f, const MvcScratch& s, Eigen::Ref<VecX> w) {
   const int id[3] = {F(f, 0), F(f, 1), F(f, 2)};
   const auto u = [&](int j) { return Vec3(s.ux[j], s.uy[j], s.uz[j]); };
   // θ_i = 2 asin(l_i / 2) for the chord l_i between the unit vectors; then exactly
@@ -138,13 +145,13 @@ bool add_triangle_weights(const Triangles& F, Eigen::Index f, const MvcScratch& 
 __attribute__((target_clones("avx512f", "avx2", "default")))
 #endif
 bool accumulate_mean_value_weights(const TriMesh& mesh, const EdgeTable& table, const Vec3& x, double eps,
-                                   MvcScratch& s, VecX& w) {
+                                   MvcScratch& s, Eigen::Ref<VecX> w) {
   const Eigen::Index n = mesh.V.rows();
   const auto nu = static_cast<std::size_t>(n);
-  s.d.resize(nu);
-  s.ux.resize(nu);
-  s.uy.resize(nu);
-  s.uz.resize(nu);
+  grow(s.d, nu);
+  grow(s.ux, nu);
+  grow(s.uy, nu);
+  grow(s.uz, nu);
   const double* vx = mesh.V.col(0).data();
   const double* vy = mesh.V.col(1).data();
   const double* vz = mesh.V.col(2).data();
@@ -172,10 +179,10 @@ bool accumulate_mean_value_weights(const TriMesh& mesh, const EdgeTable& table, 
     uz[j] /= d[j];
   }
   const std::size_t ne = table.edge_a.size();
-  s.theta.resize(ne);
-  s.nx.resize(ne);
-  s.ny.resize(ne);
-  s.nz.resize(ne);
+  grow(s.theta, ne);
+  grow(s.nx, ne);
+  grow(s.ny, ne);
+  grow(s.nz, ne);
   const int* ea = table.edge_a.data();
   const int* eb = table.edge_b.data();
   double* __restrict theta = s.theta.data();
@@ -210,8 +217,8 @@ bool accumulate_mean_value_weights(const TriMesh& mesh, const EdgeTable& table, 
   // need the per-triangle formula; then the scatter into w, in face order, with flagged faces
   // handled in place (same sums in the same order as a single loop)
   const std::size_t nfaces = static_cast<std::size_t>(mesh.F.rows());
-  s.contribution.resize(3 * nfaces);
-  s.robust.resize(nfaces);
+  grow(s.contribution, 3 * nfaces);
+  grow(s.robust, nfaces);
   const int* F0 = mesh.F.col(0).data();
   const int* F1 = mesh.F.col(1).data();
   const int* F2 = mesh.F.col(2).data();
@@ -527,15 +534,17 @@ bool calc_clustered_weights(const TriMesh& mesh, const ClusteredSurface& cs, con
         far += calc_far_field_sum(c.far, y);
         continue;
       }
-      s.local_w.setZero(c.local.V.rows());
-      if (accumulate_mean_value_weights(c.local, c.table, x, eps, s.mvc, s.local_w)) {
+      const Eigen::Index nl = c.local.V.rows();
+      if (s.local_w.size() < nl) s.local_w.resize(std::max(nl, 2 * s.local_w.size()));
+      s.local_w.head(nl).setZero();
+      if (accumulate_mean_value_weights(c.local, c.table, x, eps, s.mvc, s.local_w.head(nl))) {
         // x on a vertex or triangle of this cluster: those coordinates are the answer
         for (int g : s.touched) {
           s.w[g] = 0.0;
           s.covered[static_cast<std::size_t>(g)] = 0;
         }
         s.touched.clear();
-        for (Eigen::Index l = 0; l < s.local_w.size(); ++l)
+        for (Eigen::Index l = 0; l < nl; ++l)
           if (s.local_w[l] != 0.0) out.emplace_back(c.vertex[static_cast<std::size_t>(l)], s.local_w[l]);
         std::sort(out.begin(), out.end());
         on_surface = true;
@@ -685,9 +694,32 @@ std::vector<Points3> calc_embedded_fibres(const FibreEmbedding& embedding,
   const FramedLine& line = solver.get_line();
   if (line.num_samples() < 2 || solver.get_skinned_vertices().rows() != embedding.weights.cols())
     throw_usage("calc_embedded_fibres needs a solver that has solved a frame of this muscle");
-  Points3 P = embedding.weights * (solver.get_vertices() - solver.get_skinned_vertices());
+  // P = weights * (X - S): row p sums w_pj (x_j - s_j) over the row's entries in column order,
+  // as Eigen's row-major product on the evaluated difference does, in one pass for x, y and z
+  // over the difference stored interleaved (one cache line per vertex instead of six)
+  const Points3& X = solver.get_vertices();
+  const Points3& S = solver.get_skinned_vertices();
+  const Eigen::Index n = X.rows();
+  std::vector<double> residual(static_cast<std::size_t>(3 * n));
+  for (Eigen::Index i = 0; i < n; ++i)
+    for (int c = 0; c < 3; ++c) residual[static_cast<std::size_t>(3 * i + c)] = X(i, c) - S(i, c);
+  Points3 P(embedding.weights.rows(), 3);
   for (Eigen::Index p = 0; p < P.rows(); ++p) {
-    const LinePoint lp = calc_line_point(line, embedding.point_s[p]);
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0;
+    for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(embedding.weights, p); it; ++it) {
+      const double w = it.value();
+      const double* d = residual.data() + 3 * static_cast<std::size_t>(it.index());
+      s0 += w * d[0];
+      s1 += w * d[1];
+      s2 += w * d[2];
+    }
+    P(p, 0) = s0;
+    P(p, 1) = s1;
+    P(p, 2) = s2;
+  }
+  const LinePointInterpolator line_point(line);
+  for (Eigen::Index p = 0; p < P.rows(); ++p) {
+    const LinePoint lp = line_point(embedding.point_s[p]);
     P.row(p) += (lp.point + lp.frame * Vec3(embedding.point_offset_local.row(p).transpose())).transpose();
   }
   return split_fibres(embedding, P);
@@ -768,62 +800,10 @@ double find_closest_line_fraction(const LineSegments& segments, const Vec3& p, i
 
 }  // namespace
 
-namespace {
-
-// The tangent (frame x axis) of a framed line at normalised arc length s: calc_line_point's frame
-// times x, with the parts of Eigen's slerp that depend only on the two samples (their dot
-// product, the angle and its sine) computed once per interval instead of at every call. The
-// same operations on the same values as QuaternionBase::slerp, so the same bits; the metrics
-// query the line some fifteen times per fibre.
-class LineTangents {
- public:
-  explicit LineTangents(const FramedLine& line) : line_(line) {
-    const int m = line.num_samples();
-    for (int k = 0; k + 1 < m; ++k) {
-      Interval& i = intervals_.emplace_back();
-      i.d = line.frames[k].dot(line.frames[k + 1]);
-      const double abs_d = std::abs(i.d);
-      i.linear = abs_d >= 1.0 - std::numeric_limits<double>::epsilon();
-      if (!i.linear) {
-        i.theta = std::acos(abs_d);
-        i.sin_theta = std::sin(i.theta);
-      }
-    }
-  }
-  Vec3 calc(double s) const {
-    const int m = line_.num_samples();
-    const double x = std::clamp(s, 0.0, 1.0) * (m - 1);
-    const int k = std::min(static_cast<int>(std::floor(x)), m - 2);
-    const double t = x - k;
-    const Interval& i = intervals_[static_cast<std::size_t>(k)];
-    double scale0 = 0.0, scale1 = 0.0;
-    if (i.linear) {
-      scale0 = 1.0 - t;
-      scale1 = t;
-    } else {
-      scale0 = std::sin((1.0 - t) * i.theta) / i.sin_theta;
-      scale1 = std::sin(t * i.theta) / i.sin_theta;
-    }
-    if (i.d < 0.0) scale1 = -scale1;
-    const Quat q(scale0 * line_.frames[k].coeffs() + scale1 * line_.frames[k + 1].coeffs());
-    return q * Vec3::UnitX();
-  }
-
- private:
-  struct Interval {
-    double d = 0.0, theta = 0.0, sin_theta = 0.0;
-    bool linear = false;
-  };
-  const FramedLine& line_;
-  std::vector<Interval> intervals_;
-};
-
-}  // namespace
-
 FibreMetrics calc_fibre_metrics(const std::vector<Points3>& fibres, const Points3& action_line) {
   const FramedLine line = calc_framed_line(action_line, 64, calc_default_start_frame(action_line));
   const LineSegments segments(line);
-  const LineTangents tangents(line);
+  const LinePointInterpolator line_point(line);
   FibreMetrics m;
   const Eigen::Index n = static_cast<Eigen::Index>(fibres.size());
   m.length_m = VecX::Zero(n);
@@ -837,7 +817,7 @@ FibreMetrics calc_fibre_metrics(const std::vector<Points3>& fibres, const Points
       const double l = seg.norm();
       if (!(l > 0.0)) continue;
       const Vec3 mid = 0.5 * (P.row(i) + P.row(i + 1)).transpose();
-      const Vec3 t = tangents.calc(find_closest_line_fraction(segments, mid, hint));
+      const Vec3 t = line_point(find_closest_line_fraction(segments, mid, hint)).frame * Vec3::UnitX();
       angle_sum += l * std::acos(std::min(1.0, std::abs(t.dot(seg) / l)));
       length += l;
     }

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace fascicle {
 
@@ -108,6 +109,45 @@ LinePoint calc_line_point(const FramedLine& line, double s) {
   LinePoint out;
   out.point = ((1.0 - u) * line.points.row(k) + u * line.points.row(k + 1)).transpose();
   out.frame = line.frames[k].slerp(u, line.frames[k + 1]);
+  return out;
+}
+
+LinePointInterpolator::LinePointInterpolator(const FramedLine& line) : line_(line) {
+  const int m = line.num_samples();
+  segments_.resize(static_cast<std::size_t>(std::max(m - 1, 0)));
+  // the s-independent part of Eigen's QuaternionBase::slerp, in its arithmetic
+  const double one = 1.0 - std::numeric_limits<double>::epsilon();
+  for (int k = 0; k + 1 < m; ++k) {
+    Segment& g = segments_[static_cast<std::size_t>(k)];
+    g.cosine = line.frames[k].dot(line.frames[k + 1]);
+    const double abs_cosine = std::abs(g.cosine);
+    g.linear = abs_cosine >= one;
+    if (!g.linear) {
+      g.angle = std::acos(abs_cosine);
+      g.sin_angle = std::sin(g.angle);
+    }
+  }
+}
+
+LinePoint LinePointInterpolator::operator()(double s) const {
+  // the same k, u and point as calc_line_point; the frame as Eigen's slerp(u, frames[k + 1])
+  const int m = line_.num_samples();
+  const double x = std::clamp(s, 0.0, 1.0) * (m - 1);
+  const int k = std::min(static_cast<int>(std::floor(x)), m - 2);
+  const double u = x - k;
+  LinePoint out;
+  out.point = ((1.0 - u) * line_.points.row(k) + u * line_.points.row(k + 1)).transpose();
+  const Segment& g = segments_[static_cast<std::size_t>(k)];
+  double scale0, scale1;
+  if (g.linear) {
+    scale0 = 1.0 - u;
+    scale1 = u;
+  } else {
+    scale0 = std::sin((1.0 - u) * g.angle) / g.sin_angle;
+    scale1 = std::sin(u * g.angle) / g.sin_angle;
+  }
+  if (g.cosine < 0.0) scale1 = -scale1;
+  out.frame = Quat(scale0 * line_.frames[k].coeffs() + scale1 * line_.frames[k + 1].coeffs());
   return out;
 }
 

@@ -63,32 +63,35 @@ std::vector<double> interleave(const Points3& P) {
   return out;
 }
 
-inline Vec3 get_row(const std::vector<double>& P, int i) {
-  const double* p = P.data() + 3 * static_cast<std::size_t>(i);
-  return Vec3(p[0], p[1], p[2]);
-}
-
 }  // namespace
 
-Points3 calc_volume_gradient(const Points3& V, const Triangles& F) {
-  // Same sums in the same (face) order as a direct loop over G's rows, on interleaved copies.
-  const std::vector<double> X = interleave(V);
-  std::vector<double> G(X.size(), 0.0);
+void add_volume_gradient_times_six(const double* X, const Triangles& F, double* G) {
+  const auto row = [&](int i) {
+    const double* p = X + 3 * static_cast<std::size_t>(i);
+    return Vec3(p[0], p[1], p[2]);
+  };
   const auto add = [&](int i, const Vec3& v) {
-    double* g = G.data() + 3 * static_cast<std::size_t>(i);
+    double* g = G + 3 * static_cast<std::size_t>(i);
     g[0] += v[0];
     g[1] += v[1];
     g[2] += v[2];
   };
   for (Eigen::Index f = 0; f < F.rows(); ++f) {
     const int i0 = F(f, 0), i1 = F(f, 1), i2 = F(f, 2);
-    const Vec3 a = get_row(X, i0), b = get_row(X, i1), c = get_row(X, i2);
+    const Vec3 a = row(i0), b = row(i1), c = row(i2);
     // d/da [a.(b x c)] = b x c, and cyclically; translation-invariant form (b-a) x (c-a) summed
     // gives the same total but this one is exact for the sum
     add(i0, b.cross(c));
     add(i1, c.cross(a));
     add(i2, a.cross(b));
   }
+}
+
+Points3 calc_volume_gradient(const Points3& V, const Triangles& F) {
+  // Same sums in the same (face) order as a direct loop over G's rows, on interleaved copies.
+  const std::vector<double> X = interleave(V);
+  std::vector<double> G(X.size(), 0.0);
+  add_volume_gradient_times_six(X.data(), F, G.data());
   Points3 out(V.rows(), 3);
   for (Eigen::Index i = 0; i < V.rows(); ++i)
     for (int k = 0; k < 3; ++k) out(i, k) = G[static_cast<std::size_t>(3 * i + k)] / 6.0;
@@ -97,7 +100,14 @@ Points3 calc_volume_gradient(const Points3& V, const Triangles& F) {
 
 std::array<double, 4> calc_volume_cubic(const Points3& X, const Points3& Y, const Triangles& F,
                                         const Vec3& origin) {
-  const std::vector<double> XI = interleave(X), YI = interleave(Y);
+  return calc_volume_cubic(interleave(X).data(), interleave(Y).data(), F, origin);
+}
+
+std::array<double, 4> calc_volume_cubic(const double* XI, const double* YI, const Triangles& F, const Vec3& origin) {
+  const auto get_row = [](const double* P, int i) {
+    const double* p = P + 3 * static_cast<std::size_t>(i);
+    return Vec3(p[0], p[1], p[2]);
+  };
   std::array<double, 4> c{0.0, 0.0, 0.0, 0.0};
   for (Eigen::Index f = 0; f < F.rows(); ++f) {
     const int i0 = F(f, 0), i1 = F(f, 1), i2 = F(f, 2);

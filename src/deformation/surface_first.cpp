@@ -46,6 +46,47 @@ Points3 gather_free(const SurfaceBinding& b, const Points3& X) {
   return out;
 }
 
+// start + sign * (row k of A X) for a matrix A stored by rows (sign = +1 or -1): the row's terms
+// added to `start` one at a time in column order. These are the sums, in the order, of Eigen's
+// column-major sparse products (which scatter column by column; `D - A X` is evaluated as D, then
+// each term subtracted), so the result has their bits; a gather runs without their
+// read-modify-write chains through the result.
+template <int Sign>
+inline Eigen::Matrix<double, 1, 3> calc_row_product(const RowSparseMatrix& A, Eigen::Index k, const Points3& X,
+                                                    Eigen::Matrix<double, 1, 3> start) {
+  double s0 = start[0], s1 = start[1], s2 = start[2];
+  const int* inner = A.innerIndexPtr();
+  const double* value = A.valuePtr();
+  const Eigen::Index rows = X.rows();
+  const double* x = X.data();
+  for (int q = A.outerIndexPtr()[k]; q < A.outerIndexPtr()[k + 1]; ++q) {
+    const double v = value[q];
+    const Eigen::Index j = inner[q];
+    if constexpr (Sign > 0) {
+      s0 += v * x[j];
+      s1 += v * x[j + rows];
+      s2 += v * x[j + 2 * rows];
+    } else {
+      s0 -= v * x[j];
+      s1 -= v * x[j + rows];
+      s2 -= v * x[j + 2 * rows];
+    }
+  }
+  return {s0, s1, s2};
+}
+
+// The per-frame right-hand side without contacts: Lf^T (D - Lx X_fixed) + w_line S_free.
+Points3 calc_base_rhs(const SurfaceBinding& b, const Points3& D, const Points3& S, const Points3& fixed,
+                      double line_weight) {
+  Points3 M(D.rows(), 3);
+  for (Eigen::Index i = 0; i < D.rows(); ++i) M.row(i) = calc_row_product<-1>(b.L_fixed, i, fixed, D.row(i));
+  Points3 rhs(static_cast<Eigen::Index>(b.free_vertices.size()), 3);
+  for (Eigen::Index k = 0; k < rhs.rows(); ++k)
+    rhs.row(k) = calc_row_product<1>(b.Lf_transpose, k, M, Eigen::Matrix<double, 1, 3>::Zero()) +
+                 line_weight * S.row(b.free_vertices[static_cast<std::size_t>(k)]);
+  return rhs;
+}
+
 Eigen::AlignedBox3d calc_padded_box(const Points3& B) {
   Eigen::AlignedBox3d box(B.colwise().minCoeff().transpose(), B.colwise().maxCoeff().transpose());
   const double pad = 1e-9 * box.diagonal().norm();
@@ -232,16 +273,17 @@ SurfaceBinding bind_surface(const TriMesh& rest_surface, const Points3& rest_act
       if (b.free_index[j] >= 0) tf.emplace_back(b.free_index[j], it.row(), it.value());
       else tx.emplace_back(it.row(), fixed_index[j], it.value());
     }
-  b.Lf_transpose.resize(nf, n);
-  b.Lf_transpose.setFromTriplets(tf.begin(), tf.end());
-  b.L_fixed.resize(n, nx);
-  b.L_fixed.setFromTriplets(tx.begin(), tx.end());
+  SparseMatrix Lf_transpose(nf, n), L_fixed(n, nx);
+  Lf_transpose.setFromTriplets(tf.begin(), tf.end());
+  L_fixed.setFromTriplets(tx.begin(), tx.end());
+  b.Lf_transpose = Lf_transpose;  // the same entries, stored by rows
+  b.L_fixed = L_fixed;
 
   // normal-equation matrix Lf^T Lf + w_line I (the identity also puts every diagonal entry in the
   // pattern, so contact weights never change the sparsity pattern)
   // (Eigen's conservative product, then its exact zeros dropped: the entries and values of
   // .pruned() on the product, without the slower pruning product)
-  SparseMatrix LtL = b.Lf_transpose * SparseMatrix(b.Lf_transpose.transpose());
+  SparseMatrix LtL = Lf_transpose * SparseMatrix(Lf_transpose.transpose());
   LtL.prune(0.0, 0.0);
   b.diagonal_scale = LtL.diagonal().mean();
   SparseMatrix I(nf, nf);
@@ -477,7 +519,7 @@ SurfaceFirstSolver::SurfaceFirstSolver(SurfaceFirstSolver&&) noexcept = default;
 
 void SurfaceFirstSolver::reset() {
   contacts_.clear();
-  last_direction_.resize(0, 3);
+  last_direction_.clear();
   last_gradient_.resize(0, 3);
   vertices_ = binding_.rest.V;
   has_previous_ = false;
@@ -544,30 +586,40 @@ Eigen::MatrixXd SurfaceFirstSolver::solve(const Eigen::MatrixXd& rhs) const {
       throw_internal("surface-first: sparse low-rank columns without a supernodal LL^T factor");
     const auto r = static_cast<Eigen::Index>(f.F.size());
     const int* super = active.tree_super();
+    // t = F^T z and z -= F u, each column of F read once for all right-hand sides (every entry
+    // the same sum, in the same order, as column by column)
+    constexpr int kMaxColumns = 8;
+    double acc[kMaxColumns];
+    const auto columns_at_once = static_cast<int>(std::min<Eigen::Index>(nc, kMaxColumns));
     Eigen::MatrixXd t(r, nc);
     for (Eigen::Index k = 0; k < r; ++k) {
       const UnitForwardColumn& col = *f.F[static_cast<std::size_t>(k)];
-      for (Eigen::Index c = 0; c < nc; ++c) {
-        const double* zc = z.data() + c * n;
-        double sum = 0.0;
+      for (Eigen::Index c0 = 0; c0 < nc; c0 += columns_at_once) {
+        const int m = static_cast<int>(std::min<Eigen::Index>(columns_at_once, nc - c0));
+        std::fill(acc, acc + m, 0.0);
         for (std::size_t q = 0; q < col.chain.size(); ++q) {
           const double* v = col.values.data() + col.offset[q];
           const int k0 = super[col.chain[q]], len = col.offset[q + 1] - col.offset[q];
-          for (int i = 0; i < len; ++i) sum += v[i] * zc[k0 + i];
+          for (int c = 0; c < m; ++c) {
+            const double* zc = z.data() + (c0 + c) * n + k0;
+            double sum = acc[c];
+            for (int i = 0; i < len; ++i) sum += v[i] * zc[i];
+            acc[c] = sum;
+          }
         }
-        t(k, c) = sum;
+        for (int c = 0; c < m; ++c) t(k, c0 + c) = acc[c];
       }
     }
     const Eigen::MatrixXd u = f.capacitance.solve(t);
     for (Eigen::Index k = 0; k < r; ++k) {
       const UnitForwardColumn& col = *f.F[static_cast<std::size_t>(k)];
-      for (Eigen::Index c = 0; c < nc; ++c) {
-        double* zc = z.data() + c * n;
-        const double uk = u(k, c);
-        for (std::size_t q = 0; q < col.chain.size(); ++q) {
-          const double* v = col.values.data() + col.offset[q];
-          const int k0 = super[col.chain[q]], len = col.offset[q + 1] - col.offset[q];
-          for (int i = 0; i < len; ++i) zc[k0 + i] -= v[i] * uk;
+      for (std::size_t q = 0; q < col.chain.size(); ++q) {
+        const double* v = col.values.data() + col.offset[q];
+        const int k0 = super[col.chain[q]], len = col.offset[q + 1] - col.offset[q];
+        for (Eigen::Index c = 0; c < nc; ++c) {
+          double* zc = z.data() + c * n + k0;
+          const double uk = u(k, c);
+          for (int i = 0; i < len; ++i) zc[i] -= v[i] * uk;
         }
       }
     }
@@ -691,46 +743,89 @@ void SurfaceFirstSolver::prepare_factor(const std::vector<int>& wanted) {
 // step"). With X0 = K^-1 b and Y = K^-1 g(X_k), the iterate X_{k+1} = X0 + lambda Y lies on the
 // constraint exactly (lambda: root of the cubic V(X0 + lambda Y) = V0); at a fixed point
 // K x - b = lambda grad V(x), the KKT conditions. Returns the number of linear solves.
+// X0, Y and the iterate are kept interleaved (x0 y0 z0 x1 ...) for the volume cubic and gradient,
+// which read a triangle's corners as three contiguous triples; the arithmetic is that of
+// X0 + lambda * Y, calc_volume_cubic and calc_volume_gradient on #V x 3 matrices (same bits).
 int SurfaceFirstSolver::solve_volume(const Points3& rhs_free, const Points3& fixed, Points3& X) {
   const SurfaceBinding& b = binding_;
   const Triangles& F = b.rest.F;
   const int nf = static_cast<int>(b.free_vertices.size());
+  const Eigen::Index n = X.rows();
+  const auto n3 = static_cast<std::size_t>(3 * n);
   const Vec3 centre = X.colwise().mean().transpose();
+
+  // free rows of a #free x 3 block into an interleaved #V array
+  const auto put_free = [&](const auto& M, std::vector<double>& out) {
+    for (int k = 0; k < nf; ++k) {
+      double* o = out.data() + 3 * static_cast<std::size_t>(b.free_vertices[static_cast<std::size_t>(k)]);
+      o[0] = M(k, 0);
+      o[1] = M(k, 1);
+      o[2] = M(k, 2);
+    }
+  };
+  // the volume gradient's free rows at the interleaved points P (calc_volume_gradient's bits)
+  std::vector<double>& G = gradient_scratch_;
+  G.resize(n3);
+  const auto free_gradient = [&](const std::vector<double>& P) {
+    std::fill(G.begin(), G.end(), 0.0);
+    add_volume_gradient_times_six(P.data(), F, G.data());
+    Points3 out(nf, 3);
+    for (int k = 0; k < nf; ++k) {
+      const double* g = G.data() + 3 * static_cast<std::size_t>(b.free_vertices[static_cast<std::size_t>(k)]);
+      out(k, 0) = g[0] / 6.0;
+      out(k, 1) = g[1] / 6.0;
+      out(k, 2) = g[2] / 6.0;
+    }
+    return out;
+  };
 
   // first solve: the unconstrained minimiser, and a direction: the previous frame's (contact-free
   // factor only) or K^-1 g at the warm-start point
-  Points3 g, X0, Y;
-  const bool reuse = contacts_.empty() && last_direction_.rows() == X.rows();
+  std::vector<double>& X0 = start_scratch_;
+  std::vector<double>& P = iterate_scratch_;
+  X0.resize(n3);
+  P.resize(n3);
+  std::vector<double> Y;
+  for (std::size_t k = 0; k < b.fixed_vertices.size(); ++k)
+    for (int c = 0; c < 3; ++c)
+      X0[3 * static_cast<std::size_t>(b.fixed_vertices[k]) + c] = fixed(static_cast<Eigen::Index>(k), c);
+  Points3 g;
+  const bool reuse = contacts_.empty() && last_direction_.size() == n3;
   if (reuse) {
     g = last_gradient_;
-    X0 = assemble(b, solve(rhs_free), fixed);
+    put_free(solve(rhs_free), X0);
     Y = last_direction_;
   } else {
-    g = gather_free(b, calc_volume_gradient(X, F));
+    for (Eigen::Index i = 0; i < n; ++i)
+      for (int c = 0; c < 3; ++c) P[static_cast<std::size_t>(3 * i + c)] = X(i, c);
+    g = free_gradient(P);
     Eigen::MatrixXd B(nf, 6);
     B << rhs_free, g;
     const Eigen::MatrixXd Z = solve(B);
-    X0 = assemble(b, Z.leftCols(3), fixed);
-    Y = assemble(b, Z.rightCols(3), Points3::Zero(fixed.rows(), 3));
+    put_free(Z.leftCols(3), X0);
+    Y.assign(n3, 0.0);
+    put_free(Z.rightCols(3), Y);
   }
   int solves = 1;
   for (;;) {
-    const double lambda = solve_volume_cubic(calc_volume_cubic(X0, Y, F, centre), b.rest_volume_m3);
+    const double lambda = solve_volume_cubic(calc_volume_cubic(X0.data(), Y.data(), F, centre), b.rest_volume_m3);
     if (!std::isfinite(lambda))
       throw_numerical("the volume constraint has no solution along the Gauss-Newton direction",
                       muscle_context(b.name, "the frame's deformation is too large; check the "
                                              "action line and attachment motions"));
-    X = X0 + lambda * Y;
+    for (std::size_t q = 0; q < n3; ++q) P[q] = X0[q] + lambda * Y[q];
     info_.volume_multiplier = lambda;
-    const Points3 g_new = gather_free(b, calc_volume_gradient(X, F));
+    const Points3 g_new = free_gradient(P);
     info_.stationarity = (g_new - g).norm() / g.norm();
     if (info_.stationarity <= b.options.stationarity_tolerance ||
         solves >= b.options.max_volume_iterations)
       break;
     g = g_new;
-    Y = assemble(b, solve(g), Points3::Zero(fixed.rows(), 3));
+    put_free(solve(g), Y);  // (the fixed rows of Y stay zero)
     ++solves;
   }
+  for (Eigen::Index i = 0; i < n; ++i)
+    for (int c = 0; c < 3; ++c) X(i, c) = P[static_cast<std::size_t>(3 * i + c)];
   if (contacts_.empty()) {
     last_direction_ = std::move(Y);
     last_gradient_ = std::move(g);
@@ -836,8 +931,9 @@ const Points3& SurfaceFirstSolver::calc_frame(const SurfaceFrameInput& input) {
 
   // skinned positions S and rotated differential coordinates D
   Points3 S(n, 3), D(n, 3);
+  const LinePointInterpolator line_point(line);
   for (Eigen::Index i = 0; i < n; ++i) {
-    const LinePoint lp = calc_line_point(line, b.vertex_s[i]);
+    const LinePoint lp = line_point(b.vertex_s[i]);
     const Mat3 R = lp.frame.toRotationMatrix();
     S.row(i) = (lp.point + R * b.offset_local.row(i).transpose()).transpose();
     D.row(i) = (R * b.delta_local.row(i).transpose()).transpose();
@@ -859,8 +955,7 @@ const Points3& SurfaceFirstSolver::calc_frame(const SurfaceFrameInput& input) {
   // right-hand side without contacts: Lf^T (D - Lx X_fixed) + w_line S_free
   const double wl = b.options.line_weight * b.diagonal_scale;
   const double wc = b.options.contact_weight * b.diagonal_scale;
-  Points3 rhs_base = b.Lf_transpose * (D - b.L_fixed * fixed);
-  rhs_base += wl * gather_free(b, S);
+  const Points3 rhs_base = calc_base_rhs(b, D, S, fixed, wl);
 
   // warm start: the previous solution (or the skinned shape) gives the first volume gradient.
   // Contacts are found afresh every frame (targets from this frame's geometry), so the solution

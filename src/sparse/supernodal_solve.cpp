@@ -167,23 +167,25 @@ bool solve_supernodal_llt(const void* factor, double* B, int ncols, int ld,
   const auto [L, n, kernels, perm, permuted] = begin_factor_pass(factor, chunk, workspace);
   if (permuted && workspace.permuted.size() < chunk * n) workspace.permuted.resize(chunk * n);
   double* b[kMaxBlock];
+  double* cols[kMaxBlock];
   for (int c0 = 0; c0 < ncols; c0 += kMaxBlock) {
     const int nr = std::min(kMaxBlock, ncols - c0);
     for (int r = 0; r < nr; ++r) {
-      double* col = B + static_cast<std::ptrdiff_t>(c0 + r) * ld;
-      if (permuted) {
-        // (P b)_k = b_{Perm[k]}
-        b[r] = workspace.permuted.data() + static_cast<std::ptrdiff_t>(r) * n;
-        for (int k = 0; k < n; ++k) b[r][k] = col[perm[k]];
-      } else {
-        b[r] = col;
-      }
+      cols[r] = B + static_cast<std::ptrdiff_t>(c0 + r) * ld;
+      // the permuted copy of the right-hand side (P b), or the column itself
+      b[r] = permuted ? workspace.permuted.data() + static_cast<std::ptrdiff_t>(r) * n : cols[r];
     }
+    // the permutation read once for all the block's columns
+    if (permuted)
+      for (int k = 0; k < n; ++k) {
+        const int from = perm[k];
+        for (int r = 0; r < nr; ++r) b[r][k] = cols[r][from];
+      }
     solve_columns(L, b, nr, kernels, workspace.gathered);
     if (permuted)
-      for (int r = 0; r < nr; ++r) {
-        double* col = B + static_cast<std::ptrdiff_t>(c0 + r) * ld;
-        for (int k = 0; k < n; ++k) col[perm[k]] = b[r][k];
+      for (int k = 0; k < n; ++k) {
+        const int to = perm[k];
+        for (int r = 0; r < nr; ++r) cols[r][to] = b[r][k];
       }
   }
   return true;
@@ -222,10 +224,14 @@ bool solve_supernodal_forward(const void* factor, const double* B, int ncols, in
   double* y[kMaxBlock];
   for (int c0 = 0; c0 < ncols; c0 += kMaxBlock) {
     const int nr = std::min(kMaxBlock, ncols - c0);
+    const double* cols[kMaxBlock];
     for (int r = 0; r < nr; ++r) {
-      const double* col = B + static_cast<std::ptrdiff_t>(c0 + r) * ldb;
+      cols[r] = B + static_cast<std::ptrdiff_t>(c0 + r) * ldb;
       y[r] = Y + static_cast<std::ptrdiff_t>(c0 + r) * n;
-      for (int k = 0; k < n; ++k) y[r][k] = col[permuted ? perm[k] : k];
+    }
+    for (int k = 0; k < n; ++k) {  // the permutation read once for all the block's columns
+      const int from = permuted ? perm[k] : k;
+      for (int r = 0; r < nr; ++r) y[r][k] = cols[r][from];
     }
     forward_columns(L, y, nr, kernels, workspace.gathered);
   }
@@ -242,9 +248,11 @@ bool solve_supernodal_backward(const void* factor, double* Y, int ncols, double*
     const int nr = std::min(kMaxBlock, ncols - c0);
     for (int r = 0; r < nr; ++r) y[r] = Y + static_cast<std::ptrdiff_t>(c0 + r) * n;
     backward_columns(L, y, nr, kernels, workspace.gathered);
-    for (int r = 0; r < nr; ++r) {
-      double* col = X + static_cast<std::ptrdiff_t>(c0 + r) * ldx;
-      for (int k = 0; k < n; ++k) col[permuted ? perm[k] : k] = y[r][k];
+    double* cols[kMaxBlock];
+    for (int r = 0; r < nr; ++r) cols[r] = X + static_cast<std::ptrdiff_t>(c0 + r) * ldx;
+    for (int k = 0; k < n; ++k) {
+      const int to = permuted ? perm[k] : k;
+      for (int r = 0; r < nr; ++r) cols[r][to] = y[r][k];
     }
   }
   return true;

@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <functional>
 #include <string>
@@ -48,6 +49,27 @@ SurfaceFrameInput hinge_frame(double angle) {
   for (int k = 6; k < 11; ++k) in.action_line.row(k) = (T * Vec3(in.action_line.row(k).transpose())).transpose();
   in.attachment_motions = {Transform::Identity(), T};
   return in;
+}
+
+// The per-segment slerp parts computed once give calc_line_point's bits, on a bent line whose
+// frames turn by small and large angles (and stay put on its straight parts: the linear blend).
+TEST(FramedLine, InterpolatorGivesTheBitsOfCalcLinePoint) {
+  Points3 polyline(40, 3);
+  for (int k = 0; k < 40; ++k) {
+    const double t = k / 39.0;
+    polyline.row(k) << 0.05 * std::sin(6.0 * t) * (t > 0.5 ? 1.0 : 0.0), 0.02 * t * t, 0.3 * t;
+  }
+  const FramedLine line = calc_framed_line(polyline, 64, calc_default_start_frame(polyline));
+  const LinePointInterpolator interpolate(line);
+  int curved = 0;
+  for (int i = 0; i <= 2000; ++i) {
+    const double s = -0.01 + 1.02 * i / 2000.0;  // also outside [0, 1] (clamped)
+    const LinePoint a = calc_line_point(line, s), b = interpolate(s);
+    ASSERT_EQ(a.point, b.point) << s;
+    ASSERT_EQ(a.frame.coeffs(), b.frame.coeffs()) << s;
+    curved += a.frame.coeffs() != line.frames[std::min(63, static_cast<int>(std::clamp(s, 0.0, 1.0) * 63))].coeffs();
+  }
+  EXPECT_GT(curved, 1000);  // most points lie between two different frames
 }
 
 TEST(SurfaceFirst, RestPoseIsReproducedExactly) {

@@ -44,6 +44,26 @@ Quat calc_default_start_frame(const Points3& polyline);
 
 LinePoint calc_line_point(const FramedLine& line, double s);
 
+// calc_line_point for many parameters on one line, with the same bits: the parts of each
+// segment's slerp that do not depend on s (the cosine of the angle between its two frames, the
+// angle and its sine: one acos and one sin) are computed once per segment instead of per point.
+// Keeps a reference to `line`, which must outlive it.
+class LinePointInterpolator {
+ public:
+  explicit LinePointInterpolator(const FramedLine& line);
+  LinePoint operator()(double s) const;
+
+ private:
+  struct Segment {
+    double cosine = 1.0;     // frames[k] . frames[k+1]
+    double angle = 0.0;      // acos |cosine| (unused when `linear`)
+    double sin_angle = 0.0;  // sin(angle)
+    bool linear = true;      // |cosine| >= 1 - eps: Eigen's slerp blends linearly
+  };
+  const FramedLine& line_;
+  std::vector<Segment> segments_;
+};
+
 // Normalised arc length of the point of the line closest to p, and the distance to it.
 struct LineParameter {
   double s = 0.0;

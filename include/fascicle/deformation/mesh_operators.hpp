@@ -38,6 +38,12 @@ Points3 calc_volume_gradient(const Points3& V, const Triangles& F);
 std::array<double, 4> calc_volume_cubic(const Points3& X, const Points3& Y, const Triangles& F,
                                         const Vec3& origin);
 
+// The same two on points stored interleaved (x0 y0 z0 x1 y1 z1 ...: 3 #V values), for callers that
+// keep them so; the functions above interleave copies and call these (same arithmetic, same bits).
+// add_volume_gradient_times_six adds 6 dV/dx to G (3 #V values; calc_volume_gradient divides by 6).
+std::array<double, 4> calc_volume_cubic(const double* X, const double* Y, const Triangles& F, const Vec3& origin);
+void add_volume_gradient_times_six(const double* X, const Triangles& F, double* G);
+
 // A real root of c0 + c1 t + c2 t^2 + c3 t^3 = target: Newton's iteration from the linearised root
 // when it converges, otherwise the real root of smallest |t|, bracketed between the critical points
 // and Cauchy's bound and found by bisection. Returns NaN only when there is no real root (a

@@ -23,6 +23,8 @@
 
 namespace fascicle {
 
+using RowSparseMatrix = Eigen::SparseMatrix<double, Eigen::RowMajor>;
+
 // A set of surface vertices that moves rigidly with a bone (an origin or insertion area).
 struct SurfaceAttachment {
   std::string name;           // e.g. "origin", "insertion" (for messages)
@@ -82,8 +84,10 @@ struct SurfaceBinding {
   std::vector<int> free_vertices;   // the other vertices (sorted)
   std::vector<int> free_index;      // per vertex: index into free_vertices, or -1
   SparseMatrix laplacian;           // #V x #V
-  SparseMatrix Lf_transpose;        // (L restricted to free columns)^T: #free x #V
-  SparseMatrix L_fixed;             // L restricted to fixed columns: #V x #fixed
+  // (L restricted to free columns)^T: #free x #V, and L restricted to fixed columns: #V x #fixed,
+  // both stored by rows (the per-frame right-hand side is gathered row by row)
+  RowSparseMatrix Lf_transpose;
+  RowSparseMatrix L_fixed;
   SparseMatrix system;              // Lf^T Lf + line weight I (#free x #free, lower+upper)
   double diagonal_scale = 0.0;      // mean diagonal of Lf^T Lf
   double rest_volume_m3 = 0.0;
@@ -193,8 +197,11 @@ class SurfaceFirstSolver {
   Points3 vertices_;
   Points3 skinned_;
   FramedLine line_;
-  // warm start of the volume iteration: the last direction Y = K^-1 g (contact-free factor) and g
-  Points3 last_direction_;
+  // warm start of the volume iteration: the last direction Y = K^-1 g (contact-free factor;
+  // interleaved, 3 #V values) and g
+  std::vector<double> last_direction_;
+  // scratch of solve_volume (interleaved, 3 #V values; every entry written before it is read)
+  std::vector<double> start_scratch_, iterate_scratch_, gradient_scratch_;
   Points3 last_gradient_;
   bool has_previous_ = false;
   SurfaceFrameInfo info_;
