@@ -68,7 +68,7 @@ TEST(ExampleGait2392, RightLegWalksFibresFirst) {
 // kept apart (muscle options surface_particles and separate_surfaces), first 8 frames at two
 // threads. Every muscle's volume within 0.5 % and its bone penetration within 0.5 mm, and the
 // scene's overlap growth (deepest vertex inside another muscle's surface, beyond the rest
-// meshes' depth) within 1.5 mm at every frame: 0.33-0.73 mm since session 12, when the contacts'
+// meshes' depth) within 1.5 mm at every frame: 0.30-0.73 mm since session 12, when the contacts'
 // directions come from the closest point and particles on a bone slide under muscle contacts;
 // before, semimem_r ended 5.6-6.3 mm inside semiten_r from frame 3 on (a folded face's normal
 // held its contact) and frame 0 had 3.5 mm (docs/representations.md, "Session 12").

@@ -129,9 +129,10 @@ struct FibresFirstOptions {
   // brings the VH shank's scene overlap from 8.3 mm to 0 at every frame (volume <= 3e-4,
   // penetration 0) but costs about 1.8x the default path's CPU time per frame (idle, end of
   // session 10, alternated runs: 14.0-14.1 ms against 7.3-8.0 ms; docs/benchmarks.md), and on
-  // gait2392's generated bellies the separation fails the volume hold
-  // at frame 42 (semimem_r; session 9: frame 21; the synthetic leg of scene/demo.hpp, which
-  // failed at frame 39 at 25 Hz in session 9, was not re-measured).
+  // gait2392's generated bellies the whole walk runs with volume <= 0.22 % and no bone
+  // penetration, but overlaps beyond 0.5 mm remain in 156 of its 211 frames (session 12; the
+  // synthetic leg of scene/demo.hpp, which failed at frame 39 at 25 Hz in session 9, was not
+  // re-measured).
   bool surface_particles = false;
   int surface_anchor_count = 6;
   double surface_stiffness = 400.0;
