@@ -719,6 +719,35 @@ TEST(FibresFirst, BundleSqueezedBetweenNeighboursOnABoneKeepsVolumeAndSeparation
   EXPECT_GT(solver.get_muscles()[1].particles.col(1).maxCoeff(), rest_top + 1e-3);
 }
 
+// Option surface_bending: one spring per surface edge between the two vertices opposite it. On
+// the 12 x 20 loft of a box bundle (a closed surface: E = 3F/2 edges) that adds one spring for
+// almost every edge (none where the opposite vertices already share an edge, as in the end caps'
+// fans), and springs at rest length keep a rigid motion rigid (1e-9 m) with the volume exact.
+TEST(FibresFirst, SurfaceBendingSpringsKeepARigidMotionRigid) {
+  const double L = 0.08;
+  const EndBones bones(L);
+  FibreBundleSpec spec{"surface", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 4, 4, 0.004), 0, 1};
+  spec.rest_surface = moved(make_box(Vec3(0.0075, 0.0075, L / 2)), Vec3(0, 0, L / 2));
+  FibresFirstOptions o = tight_options();
+  o.surface_particles = true;
+  const FibresFirstModel plain = build_fibres_first_model({spec}, bones.list(), o);
+  o.surface_bending = true;
+  const FibresFirstModel model = build_fibres_first_model({spec}, bones.list(), o);
+  const long edges = 3 * model.muscles[0].surface_triangles.rows() / 2;
+  const long added = static_cast<long>(model.springs.size()) - static_cast<long>(plain.springs.size());
+  EXPECT_GT(added, 9 * edges / 10);
+  EXPECT_LE(added, edges);
+  FibresFirstSolver solver(model);
+  Transform T = Transform::Identity();
+  T.translate(Vec3(0.01, -0.02, 0.03)).rotate(Eigen::AngleAxisd(0.7, Vec3(1, 2, 3).normalized()));
+  solver.calc_frame({{T, T}});
+  const FibreBundle& m = model.muscles[0];
+  const Points3 rest_surface = model.rest.bottomRows(m.num_surface_particles);
+  const Points3 expected = (rest_surface * T.linear().transpose()).rowwise() + T.translation().transpose();
+  EXPECT_LT((solver.get_muscles()[0].surface_vertices - expected).cwiseAbs().maxCoeff(), 1e-9);
+  EXPECT_LT(solver.get_muscles()[0].relative_volume_error, 1e-12);
+}
+
 // A bone contact kept across frames must not outlive its bone's neighbourhood: with display
 // surface separation (surface particles), a block pushed 4 mm into a bundle's side holds its
 // surface particles by bone contacts (kept from frame to frame); then the block jumps 40 mm along
