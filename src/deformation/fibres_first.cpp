@@ -1163,6 +1163,12 @@ void add_surface_particle_targets(const FibresFirstModel& model, FibresFirstSolv
     Vec3 n;
     double lambda = 0.0;
     if (!calc_particle_contact_step(model, c, snapshot, pv, pf, n, lambda)) continue;
+    // at most one mean spring length of the deficit per iteration (the smaller muscle's): a
+    // vertex found deep inside a large neighbour asked for its whole depth at once, and on
+    // gait2392 at 50 Hz a gemellus pushed 46 mm in one iteration diverged (positions of
+    // kilometres, frame 105); the iterations then separate such a contact over several steps
+    const double reach = std::min(model.muscles[c.a].mean_spring_length_m, model.muscles[c.b].mean_spring_length_m);
+    lambda = std::min(lambda, reach / (1.0 + c.barycentric.squaredNorm()));
     ws.pair_target.row(pv) += snapshot.row(pv) + lambda * n.transpose();
     if (ws.pair_count[pv]++ == 0) ws.target_rows.push_back(pv);
     for (int i = 0; i < 3; ++i) {
