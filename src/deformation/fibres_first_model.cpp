@@ -14,6 +14,7 @@
 #include <cmath>
 #include <fmt/format.h>
 #include <limits>
+#include <map>
 #include <numeric>
 #include <set>
 #include <utility>
@@ -408,6 +409,29 @@ void set_rest_bone_distances(FibresFirstModel& model) {
   }
 }
 
+// Bending springs of a closed surface (FibresFirstOptions::surface_bending): for every edge shared
+// by two triangles, a spring between the two vertices opposite it (unless they already share an
+// edge), the usual cheap bending spring of cloth models: folding the surface along the edge
+// changes that distance, a rigid motion does not. `edges`: the surface's edges (a < b); `first`:
+// the particle index of vertex 0; `add_spring(a, b)` adds one at its rest length.
+template <class AddSpring>
+void add_surface_bending_springs(const Triangles& triangles, const std::set<std::pair<int, int>>& edges,
+                                 int first, AddSpring&& add_spring) {
+  std::map<std::pair<int, int>, std::vector<int>> opposite;
+  for (Eigen::Index t = 0; t < triangles.rows(); ++t)
+    for (int e = 0; e < 3; ++e) {
+      const int a = triangles(t, e), b = triangles(t, (e + 1) % 3), c = triangles(t, (e + 2) % 3);
+      opposite[{std::min(a, b), std::max(a, b)}].push_back(c);
+    }
+  std::set<std::pair<int, int>> bend;
+  for (const auto& [edge, across] : opposite) {
+    if (across.size() != 2) continue;
+    const std::pair<int, int> pair{std::min(across[0], across[1]), std::max(across[0], across[1])};
+    if (pair.first != pair.second && !edges.count(pair)) bend.insert(pair);
+  }
+  for (const auto& [a, b] : bend) add_spring(first + a, first + b);
+}
+
 // Surface particles (FibresFirstOptions::surface_particles): every muscle with a loft surface gets
 // its loft vertices as free particles after its fibre particles (all particle indices after it
 // shift), each tied by springs at rest length to its surface_anchor_count nearest fibre particles
@@ -481,6 +505,7 @@ void add_surface_particles(FibresFirstModel& model) {
           edges.emplace(std::min(a, b), std::max(a, b));
         }
       for (const auto& [a, b] : edges) add_spring(s0 + a, s0 + b);
+      if (o.surface_bending) add_surface_bending_springs(m.surface_triangles, edges, s0, add_spring);
       m.surface_weight_start.resize(extra[mi] + 1);
       m.surface_weight_particle.resize(extra[mi]);
       m.surface_weight.assign(extra[mi], 1.0);

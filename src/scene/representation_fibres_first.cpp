@@ -61,6 +61,7 @@ class FibresFirst final : public MuscleGroupRepresentation {
     // surface particles (see fibres_first.hpp): the loft's vertices as particles of the system
     o.surface_particles = get_option(first, "surface_particles", o.surface_particles ? 1.0 : 0.0) != 0.0;
     o.surface_stiffness = get_option(first, "surface_stiffness", o.surface_stiffness);
+    o.surface_bending = get_option(first, "surface_bending", 0.0) != 0.0;
     o.dynamic = get_option(first, "dynamic", 0.0) != 0.0;
     o.damping_per_s = get_option(first, "damping", o.damping_per_s);
     o.max_iterations = static_cast<int>(get_option(first, "iterations", o.max_iterations));

@@ -129,12 +129,19 @@ struct FibresFirstOptions {
   // brings the VH shank's scene overlap from 8.3 mm to 0 at every frame (volume <= 3e-4,
   // penetration 0) but costs about 1.8x the default path's CPU time per frame (idle, end of
   // session 10, alternated runs: 14.0-14.1 ms against 7.3-8.0 ms; docs/benchmarks.md), and on
-  // gait2392's generated bellies the separation fails the volume hold
-  // at frame 42 (semimem_r; session 9: frame 21; the synthetic leg of scene/demo.hpp, which
-  // failed at frame 39 at 25 Hz in session 9, was not re-measured).
+  // gait2392's generated bellies the whole walk runs with volume <= 0.44 % and no bone
+  // penetration, but overlaps beyond 0.5 mm remain in 175 of its 211 frames (session 12; the
+  // synthetic leg of scene/demo.hpp, which failed at frame 39 at 25 Hz in session 9, was not
+  // re-measured).
   bool surface_particles = false;
   int surface_anchor_count = 6;
   double surface_stiffness = 400.0;
+  // Surface particles only: also a spring (surface_stiffness) across every surface edge, between
+  // the two vertices opposite it, so the loft resists folding (docs/representations.md, "Session
+  // 12"). Off by default: on gait2392 with separation it took the overlap growth's median over
+  // the walk from 1.24 to 0.84 mm (measured before the push cap of session 12), but it costs the
+  // VH shank 27 % more CPU per frame.
+  bool surface_bending = false;
   double surface_rest_overlap_resolved_m = 5e-3;
   double contact_weight = 100.0;  // contact spring = this x along_stiffness
   int max_contact_rounds = 4;     // solve -> detect new contacts -> solve rounds per frame
