@@ -5,6 +5,7 @@
 #include "fascicle/geometry/winding_number.hpp"
 
 #include <embree3/rtcore.h>
+#include <tbb/task_arena.h>
 
 #if defined(__SSE2__)
 #include <immintrin.h>
@@ -897,8 +898,12 @@ void commit_pending_refit(const MeshQuery::Bvh& bvh) {
   if (!bvh.commit_pending.load(std::memory_order_acquire)) return;
   const std::lock_guard lock(bvh.commit_mutex);
   if (!bvh.commit_pending.load(std::memory_order_relaxed)) return;
-  rtcCommitGeometry(bvh.geometry);
-  rtcCommitScene(bvh.scene);
+  // Isolated: while this thread waits for the commit's own tasks it must not pick up another
+  // query task that would wait on commit_mutex, which this thread holds.
+  tbb::this_task_arena::isolate([&] {
+    rtcCommitGeometry(bvh.geometry);
+    rtcCommitScene(bvh.scene);
+  });
   if (const RTCError err = rtcGetDeviceError(bvh.device); err != RTC_ERROR_NONE) {
     throw_internal("Embree failed to refit the BVH (error code " +
                    std::to_string(static_cast<int>(err)) + ")");
@@ -1911,6 +1916,7 @@ std::vector<ClosestPoint> MeshQuery::calc_closest_points(const Points3& P) const
                     {.suggestion = "check the query points for NaN or Inf"});
   }
   std::vector<ClosestPoint> out(static_cast<std::size_t>(P.rows()));
+  commit_pending_refit(*bvh_);  // once here, not by the first task while the others wait
   const std::vector<Eigen::Index> order = spatial_order(P);
   const std::size_t blocks = (order.size() + kBlock - 1) / kBlock;
   // Each block starts without a hint, so the result does not depend on how blocks are scheduled.
@@ -1948,6 +1954,7 @@ InsideFlags MeshQuery::calc_is_inside(const Points3& P) const {
   InsideFlags inside(P.rows());
   const std::size_t n = static_cast<std::size_t>(P.rows());
   const std::size_t blocks = (n + kBlock - 1) / kBlock;
+  commit_pending_refit(*bvh_);  // once here, not by the first task while the others wait
   parallel_for(blocks, [&](std::size_t b) {
     const std::size_t end = std::min(n, (b + 1) * kBlock);
     for (std::size_t k = b * kBlock; k < end; ++k) {

@@ -8,6 +8,7 @@
 #include "fascicle/scene/state.hpp"
 #include "muscle_setup.hpp"
 #include <spdlog/spdlog.h>
+#include <fmt/format.h>
 
 #include <limits>
 #include <cmath>
@@ -45,28 +46,52 @@ class FibresFirst final : public MuscleGroupRepresentation {
       bone_bodies_.push_back(BodyIndex{b});
     }
     const Muscle& first = model.get_muscle(muscles.front());
+    // The options configure one solver for the whole group, so every muscle must give the same
+    // value (or leave it out for the same default): a conflict is bad input naming both muscles.
+    const auto option = [&](const std::string& key, double fallback) {
+      const double v = get_option(first, key, fallback);
+      for (MuscleIndex mi : muscles) {
+        const Muscle& m = model.get_muscle(mi);
+        const double w = get_option(m, key, fallback);
+        if (!(w == v) && !(std::isnan(w) && std::isnan(v)))
+          throw_bad_input(fmt::format("fibres_first option {} differs between muscles '{}' ({}) and '{}' ({}); "
+                                      "the fibres-first muscles of a scene are solved as one group",
+                                      key, first.name, v, m.name, w),
+                          {.object = m.name,
+                           .suggestion = fmt::format("give \"{}\" the same value in every fibres-first muscle", key)});
+      }
+      return v;
+    };
+    // A switch: 0 (off) or 1 (on).
+    const auto flag = [&](const std::string& key, bool fallback) {
+      const double v = option(key, fallback ? 1.0 : 0.0);
+      if (v != 0.0 && v != 1.0)
+        throw_bad_input(fmt::format("fibres_first option {} = {} is not 0 (off) or 1 (on)", key, v),
+                        {.object = first.name, .suggestion = fmt::format("set \"{}\" to 0 or 1", key)});
+      return v == 1.0;
+    };
     FibresFirstOptions o;
-    o.particles_per_fibre = static_cast<int>(get_option(first, "particles_per_fibre", o.particles_per_fibre));
-    o.along_stiffness = get_option(first, "along_stiffness", o.along_stiffness);
-    o.across_stiffness = get_option(first, "across_stiffness", o.across_stiffness);
-    o.bending_stiffness = get_option(first, "bending_stiffness", o.bending_stiffness);
-    o.muscle_margin_m = get_option(first, "muscle_margin", o.muscle_margin_m);
-    o.bone_margin_m = get_option(first, "bone_margin", o.bone_margin_m);
+    o.particles_per_fibre = static_cast<int>(option("particles_per_fibre", o.particles_per_fibre));
+    o.along_stiffness = option("along_stiffness", o.along_stiffness);
+    o.across_stiffness = option("across_stiffness", o.across_stiffness);
+    o.bending_stiffness = option("bending_stiffness", o.bending_stiffness);
+    o.muscle_margin_m = option("muscle_margin", o.muscle_margin_m);
+    o.bone_margin_m = option("bone_margin", o.bone_margin_m);
     // display-surface separation (experimental, off by default: see fibres_first.hpp; pairs
     // overlapping at rest by more than surface_rest_overlap_resolved metres keep their rest depths)
-    o.separate_surfaces = get_option(first, "separate_surfaces", 0.0) != 0.0;
-    o.surface_margin_m = get_option(first, "surface_margin", o.surface_margin_m);
+    o.separate_surfaces = flag("separate_surfaces", false);
+    o.surface_margin_m = option("surface_margin", o.surface_margin_m);
     o.surface_rest_overlap_resolved_m =
-        get_option(first, "surface_rest_overlap_resolved", o.surface_rest_overlap_resolved_m);
+        option("surface_rest_overlap_resolved", o.surface_rest_overlap_resolved_m);
     // surface particles (see fibres_first.hpp): the loft's vertices as particles of the system
-    o.surface_particles = get_option(first, "surface_particles", o.surface_particles ? 1.0 : 0.0) != 0.0;
-    o.surface_stiffness = get_option(first, "surface_stiffness", o.surface_stiffness);
-    o.surface_bending = get_option(first, "surface_bending", 0.0) != 0.0;
-    o.dynamic = get_option(first, "dynamic", 0.0) != 0.0;
-    o.damping_per_s = get_option(first, "damping", o.damping_per_s);
-    o.max_iterations = static_cast<int>(get_option(first, "iterations", o.max_iterations));
-    o.stall_iterations = static_cast<int>(get_option(first, "stall_iterations", o.stall_iterations));
-    o.max_contact_rounds = static_cast<int>(get_option(first, "contact_rounds", o.max_contact_rounds));
+    o.surface_particles = flag("surface_particles", o.surface_particles);
+    o.surface_stiffness = option("surface_stiffness", o.surface_stiffness);
+    o.surface_bending = flag("surface_bending", false);
+    o.dynamic = flag("dynamic", false);
+    o.damping_per_s = option("damping", o.damping_per_s);
+    o.max_iterations = static_cast<int>(option("iterations", o.max_iterations));
+    o.stall_iterations = static_cast<int>(option("stall_iterations", o.stall_iterations));
+    o.max_contact_rounds = static_cast<int>(option("contact_rounds", o.max_contact_rounds));
     // Fibre ends within this distance of their bone are fixed to it; the others are carried along
     // the action line by a tendon (keeping their rest arc-length fraction; with the option
     // "inextensible_tendon": 1 their rest arc length from the nearer end of the line), so a
@@ -75,8 +100,11 @@ class FibresFirst final : public MuscleGroupRepresentation {
     // 0.71 % with the tendon rule, 0.54 % with the arc-length-fraction rule), so scenes opt in
     // (examples/vh_shank uses 5 mm).
     o.end_attachment_distance_m =
-        get_option(first, "end_attachment_distance", std::numeric_limits<double>::infinity());
-    o.carry_inextensible_tendon = get_option(first, "inextensible_tendon", 0.0) != 0.0;
+        option("end_attachment_distance", std::numeric_limits<double>::infinity());
+    o.carry_inextensible_tendon = flag("inextensible_tendon", false);
+    if (o.surface_bending && !o.surface_particles)
+      throw_bad_input("fibres_first option surface_bending needs surface_particles (the bending springs join surface particles)",
+                      {.object = first.name, .suggestion = "add \"surface_particles\": 1, or leave surface_bending out"});
 
     std::vector<FibreBundleSpec> specs;
     for (MuscleIndex mi : muscles) {

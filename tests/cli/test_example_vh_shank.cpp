@@ -763,3 +763,52 @@ TEST(ExampleVhShank, FibresFirstSurfaceSeparationKeepsOverlapWithinHalfAMillimet
 TEST(ExampleVhShank, FibresFirstSurfaceSeparationWithoutTheStallRuleKeepsOverlapWithinHalfAMillimetre) {
   expect_separated_vh_run(", \"stall_iterations\": 0", "vh_shank_separated_no_stall");
 }
+
+// The fibres-first options configure one solver for all the scene's fibres-first muscles: a
+// switch other than 0 or 1, surface_bending without surface_particles, and a value given to one
+// muscle only (the others keep the default) are each rejected with exit code 3 before any frame,
+// naming the option (and, for the conflict, both muscles).
+TEST(ExampleVhShank, FibresFirstGroupOptionsAreValidated) {
+  const fs::path scene = example_dir() / "scene.json";
+  ASSERT_TRUE(fs::exists(scene));
+  test::data_path(kVhFolder + vh_file("Bone_Tibia"));  // fails clearly without the data
+  std::ifstream in(scene);
+  const std::string original((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string shared = (example_dir() / "../../../shared").lexically_normal().string();
+  const std::string from = "\"options\": {\"end_attachment_distance\": 0.005}";
+  struct Case {
+    std::string name, all, first, expect;
+  };
+  const std::vector<Case> cases = {
+      {"flag", ", \"separate_surfaces\": 2", "", "separate_surfaces = 2 is not 0 (off) or 1 (on)"},
+      {"bending", ", \"surface_bending\": 1", "", "surface_bending needs surface_particles"},
+      {"conflict", "", ", \"along_stiffness\": 50", "along_stiffness differs between muscles"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    std::string text = original;
+    for (size_t at = text.find("\"../../../shared"); at != std::string::npos; at = text.find("\"../../../shared", at + 1))
+      text.replace(at, std::string("\"../../../shared").size(), "\"" + shared);
+    const size_t mot = text.find("\"ankle.mot\"");
+    ASSERT_NE(mot, std::string::npos);
+    text.replace(mot, std::string("\"ankle.mot\"").size(), "\"" + (example_dir() / "ankle.mot").string() + "\"");
+    int count = 0;
+    for (size_t at = text.find(from); at != std::string::npos; at = text.find(from, at + 1), ++count) {
+      const std::string extra = c.all + (count == 0 ? c.first : "");
+      text.replace(at, from.size(), "\"options\": {\"end_attachment_distance\": 0.005" + extra + "}");
+    }
+    ASSERT_EQ(count, static_cast<int>(kMuscles.size()));
+    const fs::path out = test::scratch_dir("vh_shank_ff_options_" + c.name);
+    { std::ofstream(out / "scene.json") << text; }
+    const auto result = test::run_command(std::string(FASCICLE_CLI_PATH) + " --quiet --threads 1 run " +
+                                          (out / "scene.json").string() +
+                                          " --representation fibres-first --frames 1 --outputs csv --out " +
+                                          (out / "run").string() + " 2>&1");
+    EXPECT_EQ(result.exit_code, 3) << result.output;
+    EXPECT_NE(result.output.find(c.expect), std::string::npos) << result.output;
+    if (c.name == "conflict") {
+      EXPECT_NE(result.output.find("'" + kMuscles.front().name + "'"), std::string::npos) << result.output;
+    }
+    EXPECT_FALSE(fs::exists(out / "run" / "vh_shank_muscles.csv"));
+  }
+}

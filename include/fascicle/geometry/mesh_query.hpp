@@ -97,8 +97,8 @@ class MeshQuery {
   const TriMesh& get_mesh() const { return mesh_; }
 
   // New vertex positions for the same mesh (same vertex count, same triangles), e.g. a deforming
-  // muscle between frames. Refits the BVH (the compact tree, which rays use too; with
-  // embree_clusters Embree's REFIT build, committed at the first query after the update) and updates every auxiliary
+  // muscle between frames. Refits the BVH (the compact tree, which rays of a surface of at most
+  // 1024 clusters use too; otherwise Embree's REFIT build as well, committed at the first ray after the update) and updates every auxiliary
   // structure instead of rebuilding: all queries afterwards return exactly what a MeshQuery built
   // on the deformed mesh returns (the exhaustive answer), only the culling may be a little less
   // tight when the deformation is large. Throws fascicle::Error (bad input) on a different vertex
