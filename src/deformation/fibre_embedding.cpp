@@ -137,8 +137,9 @@ bool add_triangle_weights(const Triangles& F, Eigen::Index f, const MvcScratch& 
 // per-triangle formula (add_triangle_weights), which handles the in-plane and on-triangle cases.
 // The vertex and edge passes run over plain arrays (structure of arrays) so they vectorise.
 // With GCC on x86-64 it is compiled for AVX-512, AVX2 and the baseline, and the loader picks the
-// best the CPU has (function multiversioning). Neither target enables fused multiply-add and the
-// loops are element-wise (no reassociated sums), so the versions are meant to give the same bits;
+// best the CPU has (function multiversioning). The loops are element-wise (no reassociated sums);
+// the AVX2 and baseline versions give the same bits, while GCC's avx512f target implies FMA and
+// contracts some multiply-adds, so the AVX-512 version differs at round-off (docs/deformation.md);
 // elsewhere, and under AddressSanitizer (whose instrumentation does not mix with ifunc resolvers),
 // only the baseline is built.
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__SANITIZE_ADDRESS__)
