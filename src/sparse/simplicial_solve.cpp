@@ -229,6 +229,20 @@ bool has_avx2() {
   return __builtin_cpu_supports("avx2");
 }
 
+// Solves L D L^T x = b in place on rows in the factor's order (X: n rows of 4 or 8 lanes, ncols
+// used), with the workspace's kernel (chosen on first use) and, for n <= 65536, the 16-bit copy of
+// the row indices: the solve streams L twice, and its 4-byte indices are a third of each entry's
+// bytes; the same entries in the same order, so the same bits.
+void solve_rows_in_place(const cholmod_factor& L, SimplicialSolveWorkspace& workspace, double* X, int ncols) {
+  if (workspace.kernel == SimplicialKernel::automatic)
+    workspace.kernel = has_avx2() ? SimplicialKernel::avx2 : SimplicialKernel::generic;
+  const bool avx2 = workspace.kernel == SimplicialKernel::avx2;
+  if (const std::uint16_t* Li16 = get_row_index16(L, workspace))
+    avx2 ? solve_avx2(L, Li16, X, ncols) : solve_generic(L, Li16, X, ncols);
+  else
+    avx2 ? solve_avx2(L, static_cast<const int*>(L.i), X, ncols) : solve_generic(L, static_cast<const int*>(L.i), X, ncols);
+}
+
 }  // namespace
 
 bool is_simplicial_ldlt(const void* factor) {
@@ -241,13 +255,7 @@ bool solve_simplicial_ldlt_in_factor_order(const void* factor, double* X, int nc
                                            SimplicialSolveWorkspace& workspace) {
   if (!is_simplicial_ldlt(factor) || ncols < 1 || ncols > 8 || width != (ncols <= 4 ? 4 : 8)) return false;
   const cholmod_factor& L = *static_cast<const cholmod_factor*>(factor);
-  if (workspace.kernel == SimplicialKernel::automatic)
-    workspace.kernel = has_avx2() ? SimplicialKernel::avx2 : SimplicialKernel::generic;
-  const bool avx2 = workspace.kernel == SimplicialKernel::avx2;
-  if (const std::uint16_t* Li16 = get_row_index16(L, workspace))
-    avx2 ? solve_avx2(L, Li16, X, ncols) : solve_generic(L, Li16, X, ncols);
-  else
-    avx2 ? solve_avx2(L, static_cast<const int*>(L.i), X, ncols) : solve_generic(L, static_cast<const int*>(L.i), X, ncols);
+  solve_rows_in_place(L, workspace, X, ncols);
   return true;
 }
 
@@ -269,13 +277,7 @@ bool solve_simplicial_ldlt_rows(const void* factor, double* B, int ncols, int wi
     double* to = X + static_cast<std::ptrdiff_t>(k) * width;
     for (int c = 0; c < width; ++c) to[c] = c < ncols ? from[c] : 0.0;
   }
-  if (workspace.kernel == SimplicialKernel::automatic)
-    workspace.kernel = has_avx2() ? SimplicialKernel::avx2 : SimplicialKernel::generic;
-  const bool avx2 = workspace.kernel == SimplicialKernel::avx2;
-  if (const std::uint16_t* Li16 = get_row_index16(L, workspace))
-    avx2 ? solve_avx2(L, Li16, X, ncols) : solve_generic(L, Li16, X, ncols);
-  else
-    avx2 ? solve_avx2(L, static_cast<const int*>(L.i), X, ncols) : solve_generic(L, static_cast<const int*>(L.i), X, ncols);
+  solve_rows_in_place(L, workspace, X, ncols);
   for (int k = 0; k < n; ++k) {
     const double* from = X + static_cast<std::ptrdiff_t>(k) * width;
     double* to = B + static_cast<std::ptrdiff_t>(perm ? perm[k] : k) * width;
@@ -308,15 +310,7 @@ bool solve_simplicial_ldlt(const void* factor, double* B, int ncols, int ld,
     const std::ptrdiff_t from = perm ? perm[k] : k;
     for (int c = 0; c < ncols; ++c) row[c] = B[static_cast<std::ptrdiff_t>(c) * ld + from];
   }
-  if (workspace.kernel == SimplicialKernel::automatic)
-    workspace.kernel = has_avx2() ? SimplicialKernel::avx2 : SimplicialKernel::generic;
-  // The 16-bit copy of the row indices (n <= 65536): the solve streams L twice, and its 4-byte
-  // indices are a third of each entry's bytes; the same entries in the same order, so the same bits.
-  const bool avx2 = workspace.kernel == SimplicialKernel::avx2;
-  if (const std::uint16_t* Li16 = get_row_index16(L, workspace))
-    avx2 ? solve_avx2(L, Li16, X, ncols) : solve_generic(L, Li16, X, ncols);
-  else
-    avx2 ? solve_avx2(L, static_cast<const int*>(L.i), X, ncols) : solve_generic(L, static_cast<const int*>(L.i), X, ncols);
+  solve_rows_in_place(L, workspace, X, ncols);
   for (int c = 0; c < ncols; ++c) {
     double* col = B + static_cast<std::ptrdiff_t>(c) * ld;
     for (int k = 0; k < n; ++k) col[perm ? perm[k] : k] = X[static_cast<std::ptrdiff_t>(k) * S + c];

@@ -622,14 +622,20 @@ TEST(FibresFirst, SurfaceOverlapMeasureMatchesAnIndependentOne) {
   EXPECT_GT(largest, 1e-3);  // the measures compared a real overlap
 }
 
+// A 4 x 4 bundle of length L along z between the end bones, with a box rest surface around it.
+FibreBundleSpec make_boxed_bundle_spec(double L) {
+  FibreBundleSpec spec{"surface", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 4, 4, 0.004), 0, 1};
+  spec.rest_surface = moved(make_box(Vec3(0.0075, 0.0075, L / 2)), Vec3(0, 0, L / 2));
+  return spec;
+}
+
 // Surface particles: the loft's vertices are particles after the fibre particles, with weight 1;
 // a rigid motion of both bones moves the surface rigidly (1e-9 m), and a 25 % stretch keeps the
 // volume of the surface within 1e-3.
 TEST(FibresFirst, SurfaceParticlesMoveRigidlyAndHoldVolume) {
   const double L = 0.08;
   const EndBones bones(L);
-  FibreBundleSpec spec{"surface", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 4, 4, 0.004), 0, 1};
-  spec.rest_surface = moved(make_box(Vec3(0.0075, 0.0075, L / 2)), Vec3(0, 0, L / 2));
+  const FibreBundleSpec spec = make_boxed_bundle_spec(L);
   FibresFirstOptions o = tight_options();
   o.surface_particles = true;
   const FibresFirstModel model = build_fibres_first_model({spec}, bones.list(), o);
@@ -726,8 +732,7 @@ TEST(FibresFirst, BundleSqueezedBetweenNeighboursOnABoneKeepsVolumeAndSeparation
 TEST(FibresFirst, SurfaceBendingSpringsKeepARigidMotionRigid) {
   const double L = 0.08;
   const EndBones bones(L);
-  FibreBundleSpec spec{"surface", make_bundle(Vec3::Zero(), Vec3::UnitZ(), Vec3::UnitX(), L, 4, 4, 0.004), 0, 1};
-  spec.rest_surface = moved(make_box(Vec3(0.0075, 0.0075, L / 2)), Vec3(0, 0, L / 2));
+  const FibreBundleSpec spec = make_boxed_bundle_spec(L);
   FibresFirstOptions o = tight_options();
   o.surface_particles = true;
   const FibresFirstModel plain = build_fibres_first_model({spec}, bones.list(), o);
