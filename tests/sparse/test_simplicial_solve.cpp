@@ -52,12 +52,14 @@ Lattice make_lattice(int fibres, int length, unsigned seed) {
 
 class SimplicialSolve : public ::testing::Test {
  protected:
-  void SetUp() override {
+  void SetUp() override { set_up(40, 15, 7u); }
+  // Factorises make_lattice(fibres, length, seed) as a simplicial LDL^T.
+  void set_up(int fibres, int length, unsigned seed) {
     cholmod_start(&c_);
     c_.print = 0;
     c_.supernodal = CHOLMOD_SIMPLICIAL;
     c_.final_ll = 0;
-    A_ = make_lattice(40, 15, 7u);
+    A_ = make_lattice(fibres, length, seed);
     view_ = view_symmetric_lower(static_cast<std::size_t>(A_.n), A_.x.size(), A_.p.data(), A_.i.data(), A_.x.data());
     L_ = cholmod_analyze(&view_, &c_);
     ASSERT_NE(L_, nullptr);
@@ -159,6 +161,28 @@ TEST_F(SimplicialSolve, EqualsCholmodSolveBitForBitForOneToEightColumns) {
       EXPECT_LT(relative_residual(X, B, ncols), 1e-12) << "stage " << stage << ", " << ncols << " columns";
     }
   }
+}
+
+// More rows than 16-bit indices can hold (a shuffled chain of 70 000 unknowns, which AMD orders
+// without fill): the solve reads L's own 32-bit row indices, keeps no 16-bit copy, and still gives
+// CHOLMOD's bits.
+class SimplicialSolveLarge : public SimplicialSolve {
+ protected:
+  void SetUp() override { set_up(1, 70000, 5u); }
+};
+
+TEST_F(SimplicialSolveLarge, MoreRowsThanSixteenBitIndicesKeepCholmodBits) {
+  ASSERT_GT(A_.n, 65536);
+  SimplicialSolveWorkspace ws;
+  for (int ncols : {1, 3, 8}) {
+    const std::vector<double> B = make_rhs(ncols, 21u + ncols);
+    std::vector<double> X = B;
+    ASSERT_TRUE(solve_simplicial_ldlt(L_, X.data(), ncols, A_.n, ws));
+    const std::vector<double> expected = cholmod_solution(B, ncols);
+    EXPECT_EQ(std::memcmp(X.data(), expected.data(), X.size() * sizeof(double)), 0) << ncols << " columns";
+    EXPECT_LT(relative_residual(X, B, ncols), 1e-12) << ncols << " columns";
+  }
+  EXPECT_TRUE(ws.row_index16.empty());
 }
 
 // One workspace across modifications that change L's pattern (a rank-one update coupling the
