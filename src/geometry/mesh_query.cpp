@@ -110,6 +110,46 @@ TrianglePoint closest_point_on_triangle(const Vec3& p, const Vec3& a, const Vec3
   return closest_on_triangle(p, a, b, c);
 }
 
+namespace {
+
+// For a ray whose line lies in the plane of triangle abc: whether some t in [t_min, t_max] puts
+// origin + t direction on the closed triangle. Computed in the 2D projection that drops the axis
+// of the normal's largest component (the in-plane direction keeps a non-zero image there), where
+// each edge's half-plane bounds t on one side. Rounding can only decide a touch that is off by a
+// few ulps of the coordinates, far inside the padding of any box that holds the triangle, so a
+// traversal that skips the triangle's box never misses a graze another traversal reports. A
+// degenerate triangle (zero normal) is reported as touched, as before this test existed.
+bool coplanar_ray_touches_triangle(const Vec3& origin, const Vec3& direction, const Vec3& a,
+                                   const Vec3& b, const Vec3& c, double t_min, double t_max) {
+  const Vec3 n = (b - a).cross(c - a);
+  int kn = 0;
+  n.cwiseAbs().maxCoeff(&kn);
+  if (n[kn] == 0.0) return true;
+  const int kx = (kn + 1) % 3, ky = (kn + 2) % 3;
+  const double orientation = n[kn] > 0.0 ? 1.0 : -1.0;  // the projected triangle's winding
+  const std::array<const Vec3*, 3> corner{&a, &b, &c};
+  double lo = t_min, hi = t_max;
+  for (int e = 0; e < 3; ++e) {
+    const Vec3& p = *corner[e];
+    const Vec3& q = *corner[(e + 1) % 3];
+    const double ex = q[kx] - p[kx], ey = q[ky] - p[ky];
+    // Inside the edge's half-plane: orientation * cross(q - p, x - p) >= 0, linear in t.
+    const double f0 = orientation * (ex * (origin[ky] - p[ky]) - ey * (origin[kx] - p[kx]));
+    const double f1 = orientation * (ex * direction[ky] - ey * direction[kx]);
+    if (f1 > 0.0) {
+      lo = std::max(lo, -f0 / f1);
+    } else if (f1 < 0.0) {
+      hi = std::min(hi, -f0 / f1);
+    } else if (f0 < 0.0) {
+      return false;  // parallel to the edge, on its outer side
+    }
+    if (lo > hi) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
 std::optional<RayHit> intersect_ray_triangle(const Vec3& origin, const Vec3& direction,
                                              const Vec3& a, const Vec3& b, const Vec3& c,
                                              double t_min, double t_max, bool* on_edge) {
@@ -135,7 +175,9 @@ std::optional<RayHit> intersect_ray_triangle(const Vec3& origin, const Vec3& dir
   if ((u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0)) return std::nullopt;
   const double det = u + v + w;
   if (det == 0.0) {
-    if (on_edge != nullptr) *on_edge = true;  // ray in the triangle's plane, or a degenerate one
+    // The ray's line lies in the triangle's plane (or the triangle is degenerate): no hit, but a
+    // graze when the part of the ray in (t_min, t_max) touches the triangle.
+    if (on_edge != nullptr) *on_edge = coplanar_ray_touches_triangle(origin, direction, a, b, c, t_min, t_max);
     return std::nullopt;
   }
   const double t = (u * sz * A[kz] + v * sz * B[kz] + w * sz * C[kz]) / det;

@@ -15,6 +15,7 @@
 #include <cstdint>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <numbers>
 #include <random>
 #include <type_traits>
@@ -179,6 +180,39 @@ TEST(RayTriangle, AnalyticHitAndWatertightEdge) {
     const bool h2 = intersect_ray_triangle(origin, dir, b, d, c).has_value();
     ASSERT_TRUE(h1 || h2) << i;
   }
+}
+
+TEST(RayTriangle, RayInThePlaneGrazesOnlyWhereItTouchesTheTriangle) {
+  // Triangle in the plane z = 0.25 (exactly representable); rays in that plane.
+  const Vec3 a(0, 0, 0.25), b(1, 0, 0.25), c(0, 1, 0.25);
+  const auto grazes = [&](const Vec3& o, const Vec3& d, double t_min, double t_max) {
+    bool on_edge = false;
+    const auto hit = intersect_ray_triangle(o, d, a, b, c, t_min, t_max, &on_edge);
+    EXPECT_FALSE(hit.has_value());
+    return on_edge;
+  };
+  const double inf = std::numeric_limits<double>::infinity();
+  // Through the triangle's interior, in front of the origin.
+  EXPECT_TRUE(grazes(Vec3(-1, 0.25, 0.25), Vec3(1, 0, 0), 0.0, inf));
+  // The same line, but the triangle lies behind the origin, or beyond t_max.
+  EXPECT_FALSE(grazes(Vec3(2, 0.25, 0.25), Vec3(1, 0, 0), 0.0, inf));
+  EXPECT_FALSE(grazes(Vec3(-1, 0.25, 0.25), Vec3(1, 0, 0), 0.0, 0.5));
+  // Ends inside the triangle: the range [0, 1.2] reaches x = 0.2.
+  EXPECT_TRUE(grazes(Vec3(-1, 0.25, 0.25), Vec3(1, 0, 0), 0.0, 1.2));
+  // In the plane but beside the triangle (the line x + y = 1.5 misses it), either way round.
+  EXPECT_FALSE(grazes(Vec3(1.5, 0, 0.25), Vec3(-1, 1, 0), -inf, inf));
+  EXPECT_FALSE(grazes(Vec3(0, 1.5, 0.25), Vec3(1, -1, 0), -inf, inf));
+  // Along the hypotenuse x + y = 1 and touching only the corner b.
+  EXPECT_TRUE(grazes(Vec3(2, -1, 0.25), Vec3(-1, 1, 0), 0.0, inf));
+  EXPECT_TRUE(grazes(Vec3(2, 0, 0.25), Vec3(-1, 0, 0), 0.0, inf));
+  EXPECT_TRUE(grazes(Vec3(1, -1, 0.25), Vec3(0, 1, 0), 0.0, 1.0));
+  EXPECT_FALSE(grazes(Vec3(1, -1, 0.25), Vec3(0, 1, 0), 0.0, 0.999));
+  // The result does not depend on the triangle's winding.
+  bool on_edge = true;
+  intersect_ray_triangle(Vec3(1.5, 0, 0.25), Vec3(-1, 1, 0), a, c, b, -inf, inf, &on_edge);
+  EXPECT_FALSE(on_edge);
+  intersect_ray_triangle(Vec3(-1, 0.25, 0.25), Vec3(1, 0, 0), a, c, b, 0.0, inf, &on_edge);
+  EXPECT_TRUE(on_edge);
 }
 
 TEST(WindingNumber, ClosedMeshIsOneInsideZeroOutside) {

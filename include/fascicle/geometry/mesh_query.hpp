@@ -58,7 +58,9 @@ TrianglePoint closest_point_on_triangle(const Vec3& p, const Vec3& a, const Vec3
 // Watertight ray-triangle intersection (Woop, Benthin and Wald 2013, JCGT 2(1)), in double: a ray
 // through a shared edge hits at least one of the two triangles. Returns a hit with t in
 // (t_min, t_max), or nothing. `on_edge` (optional) is set when the ray passes exactly through an
-// edge or vertex (a barycentric coordinate is exactly 0) or the triangle is degenerate.
+// edge or vertex (a barycentric coordinate is exactly 0), when the ray lies in the triangle's
+// plane and its part with t in [t_min, t_max] touches the triangle, or when the triangle is
+// degenerate and the ray's line meets its line.
 std::optional<RayHit> intersect_ray_triangle(const Vec3& origin, const Vec3& direction,
                                              const Vec3& a, const Vec3& b, const Vec3& c,
                                              double t_min = 0.0,
