@@ -370,11 +370,15 @@ unsigned find_candidates(const float* __restrict block, float px, float py, floa
 // |(c - o) x d|^2 > (r + margin)^2 |d|^2 without a square root, in float relative to the cluster's
 // anchor. The rounding error of the cross product is a few float ulps of |c - o| |d|; the caller's
 // margin is 2^-18 (|o - anchor| + 2 * cluster extent). Vectorised like find_candidates.
+// [s_lo, s_hi] (d a unit vector): the part of the line that matters, as distances from o along d
+// (-inf, +inf for the whole line). A point of the sphere lies within r of c, so its distance along
+// d is within r of s = (c - o) . d: spheres with s + r + margin < s_lo or s - r - margin > s_hi
+// are left out too (the margin covers the few float ulps of |c - o| in s as well).
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__SANITIZE_ADDRESS__)
 __attribute__((target_clones("avx2", "default")))
 #endif
 unsigned find_ray_candidates(const float* __restrict block, float ox, float oy, float oz, float dx,
-                             float dy, float dz, float margin) {
+                             float dy, float dz, float margin, float s_lo, float s_hi) {
   constexpr unsigned K = MeshQuery::Bvh::kCluster;
   const float* cx = block;
   const float* cy = block + K;
@@ -386,7 +390,10 @@ unsigned find_ray_candidates(const float* __restrict block, float ox, float oy, 
     const float wx = cx[k] - ox, wy = cy[k] - oy, wz = cz[k] - oz;
     const float x = wy * dz - wz * dy, y = wz * dx - wx * dz, z = wx * dy - wy * dx;
     const float reach = r[k] + margin;
-    mask |= static_cast<unsigned>(x * x + y * y + z * z <= reach * reach * d2) << k;
+    const float along = wx * dx + wy * dy + wz * dz;
+    mask |= static_cast<unsigned>((x * x + y * y + z * z <= reach * reach * d2) & (along + reach >= s_lo) &
+                                  (along - reach <= s_hi))
+            << k;
   }
   return mask;
 }
@@ -773,6 +780,10 @@ struct RayState {
   bool grazed;                   // RayMode::crossings: a hit on an edge/vertex or in-plane
   double margin;                 // absolute margin of the bounding-sphere screen
   std::array<float, 3> unit_direction;  // direction / |direction| in float, for the screen
+  // The screen's range along unit_direction, t_min |direction| and t_max |direction| rounded
+  // outward; the whole line (-inf, +inf) when crossing rays count (their in-plane grazes are
+  // flagged whatever the range, see intersect_slot).
+  float s_lo, s_hi;
 };
 
 void intersect_slot(const RTCIntersectFunctionNArguments* args, RayState* r, unsigned t) {
@@ -823,7 +834,7 @@ void visit_ray_cluster(RayState* r, unsigned cluster, const RTCIntersectFunction
   unsigned mask = find_ray_candidates(
       r->bvh->soa.data() + MeshQuery::Bvh::kSoaRows * K * cluster, static_cast<float>(oa.x()),
       static_cast<float>(oa.y()), static_cast<float>(oa.z()), r->unit_direction[0],
-      r->unit_direction[1], r->unit_direction[2], to_float_or_infinity(margin));
+      r->unit_direction[1], r->unit_direction[2], to_float_or_infinity(margin), r->s_lo, r->s_hi);
   if (count < K) mask &= (1u << count) - 1u;
   while (mask != 0) {
     const auto k = static_cast<unsigned>(std::countr_zero(mask));
@@ -992,8 +1003,17 @@ RayState make_ray(const MeshQuery::Bvh& bvh, const Vec3& origin, const Vec3& dir
   s.crossings = 0;
   s.grazed = false;
   s.margin = 1e-10 * ((origin - bvh.middle).norm() + bvh.scale);
-  const Vec3 unit = direction.normalized();
+  const double length = direction.norm();
+  const Vec3 unit = direction / length;
   s.unit_direction = {static_cast<float>(unit.x()), static_cast<float>(unit.y()), static_cast<float>(unit.z())};
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  s.s_lo = -kInf;
+  s.s_hi = kInf;
+  if (mode != RayMode::crossings) {
+    // (beyond float range the bound stays infinite)
+    if (std::abs(t_min * length) < 1e30) s.s_lo = round_down(t_min * length);
+    if (std::abs(t_max * length) < 1e30) s.s_hi = round_up(t_max * length);
+  }
   return s;
 }
 
