@@ -3,6 +3,7 @@
 
 #include "fascicle/core/atomic_file.hpp"
 #include "fascicle/core/error.hpp"
+#include "vtk_smp.hpp"
 
 #include <vtkCallbackCommand.h>
 #include <vtkCellArray.h>
@@ -184,6 +185,7 @@ std::string& get_encoding_buffer() {
 }  // namespace
 
 void write_polydata(const std::filesystem::path& path, const PolyData& data, VtpCompression compression) {
+  io_detail::use_sequential_vtk_smp();
   check_polydata(data);
   if (data.points.rows() > std::numeric_limits<std::int32_t>::max() ||
       data.triangles.size() > std::numeric_limits<std::int32_t>::max())
