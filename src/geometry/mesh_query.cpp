@@ -412,11 +412,15 @@ unsigned find_candidates(const float* __restrict block, float px, float py, floa
 // |(c - o) x d|^2 > (r + margin)^2 |d|^2 without a square root, in float relative to the cluster's
 // anchor. The rounding error of the cross product is a few float ulps of |c - o| |d|; the caller's
 // margin is 2^-18 (|o - anchor| + 2 * cluster extent). Vectorised like find_candidates.
+// [s_lo, s_hi] (d a unit vector): the part of the line that matters, as distances from o along d
+// (-inf, +inf for the whole line). A point of the sphere lies within r of c, so its distance along
+// d is within r of s = (c - o) . d: spheres with s + r + margin < s_lo or s - r - margin > s_hi
+// are left out too (the margin covers the few float ulps of |c - o| in s as well).
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__SANITIZE_ADDRESS__)
 __attribute__((target_clones("avx2", "default")))
 #endif
 unsigned find_ray_candidates(const float* __restrict block, float ox, float oy, float oz, float dx,
-                             float dy, float dz, float margin) {
+                             float dy, float dz, float margin, float s_lo, float s_hi) {
   constexpr unsigned K = MeshQuery::Bvh::kCluster;
   const float* cx = block;
   const float* cy = block + K;
@@ -428,7 +432,10 @@ unsigned find_ray_candidates(const float* __restrict block, float ox, float oy, 
     const float wx = cx[k] - ox, wy = cy[k] - oy, wz = cz[k] - oz;
     const float x = wy * dz - wz * dy, y = wz * dx - wx * dz, z = wx * dy - wy * dx;
     const float reach = r[k] + margin;
-    mask |= static_cast<unsigned>(x * x + y * y + z * z <= reach * reach * d2) << k;
+    const float along = wx * dx + wy * dy + wz * dz;
+    mask |= static_cast<unsigned>((x * x + y * y + z * z <= reach * reach * d2) & (along + reach >= s_lo) &
+                                  (along - reach <= s_hi))
+            << k;
   }
   return mask;
 }
@@ -815,6 +822,10 @@ struct RayState {
   bool grazed;                   // RayMode::crossings: a hit on an edge/vertex or in-plane
   double margin;                 // absolute margin of the bounding-sphere screen
   std::array<float, 3> unit_direction;  // direction / |direction| in float, for the screen
+  // The screen's range along unit_direction, t_min |direction| and t_max |direction| rounded
+  // outward; the whole line (-inf, +inf) when crossing rays count (their in-plane grazes are
+  // flagged whatever the range, see intersect_slot).
+  float s_lo, s_hi;
 };
 
 void intersect_slot(const RTCIntersectFunctionNArguments* args, RayState* r, unsigned t) {
@@ -865,7 +876,7 @@ void visit_ray_cluster(RayState* r, unsigned cluster, const RTCIntersectFunction
   unsigned mask = find_ray_candidates(
       r->bvh->soa.data() + MeshQuery::Bvh::kSoaRows * K * cluster, static_cast<float>(oa.x()),
       static_cast<float>(oa.y()), static_cast<float>(oa.z()), r->unit_direction[0],
-      r->unit_direction[1], r->unit_direction[2], to_float_or_infinity(margin));
+      r->unit_direction[1], r->unit_direction[2], to_float_or_infinity(margin), r->s_lo, r->s_hi);
   if (count < K) mask &= (1u << count) - 1u;
   while (mask != 0) {
     const auto k = static_cast<unsigned>(std::countr_zero(mask));
@@ -879,45 +890,73 @@ void intersect_callback(const RTCIntersectFunctionNArguments* args) {
   visit_ray_cluster(reinterpret_cast<RayState*>(args->context), args->primID, args);
 }
 
+// One axis of find_ray_children for the four children: narrows each lane's parameter interval
+// [en, le] to the slab [lo - pad, hi + pad] (or clears `inside` when the direction's component is 0
+// and the origin lies outside the slab). Written as selects on plain arrays so that GCC vectorises
+// it; each lane runs the operations of the former one-child test in the same order (std::max(x, y)
+// is x < y ? y : x, std::min(x, y) is y < x ? y : x).
+inline void narrow_ray_children(const float* __restrict lo, const float* __restrict hi, double o, double inv,
+                                bool zero, double pad, double* __restrict en, double* __restrict le,
+                                double* __restrict inside) {
+  if (zero) {
+    for (int k = 0; k < 4; ++k) {
+      const double l = static_cast<double>(lo[k]) - pad, h = static_cast<double>(hi[k]) + pad;
+      inside[k] = (o < l || o > h) ? 0.0 : inside[k];
+    }
+    return;
+  }
+  for (int k = 0; k < 4; ++k) {
+    const double l = static_cast<double>(lo[k]) - pad, h = static_cast<double>(hi[k]) + pad;
+    const double t0 = (l - o) * inv, t1 = (h - o) * inv;
+    const bool swap = t0 > t1;
+    const double near = swap ? t1 : t0, far = swap ? t0 : t1;
+    const double widen = 1e-9 * (std::abs(near) + std::abs(far));
+    const double enter = near - widen, leave = far + widen;
+    en[k] = en[k] < enter ? enter : en[k];
+    le[k] = leave < le[k] ? leave : le[k];
+  }
+}
+
+// Which of a node's four children the ray's segment [enter, leave] meets (bit k: child k), for
+// trace_compact: child k's box [lo - pad, hi + pad], axis by axis (a direction component of 0
+// needs the origin within the slab; otherwise the slab's parameter interval, widened by 1e-9 of
+// its magnitudes, must overlap). Every lane runs the operations of the former one-child test in
+// the same order, only without its early exits: enter only grows and leave only shrinks, so the
+// answer is the same, and the four lanes run at once (2 or 4 doubles per SSE2/AVX2 register).
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__SANITIZE_ADDRESS__)
+__attribute__((target_clones("avx2", "default")))
+#endif
+unsigned find_ray_children(const MeshQuery::Bvh::Node4& node, const double* __restrict o,
+                           const double* __restrict inv, const bool* __restrict zero, double pad,
+                           double enter, double leave) {
+  double en[4] = {enter, enter, enter, enter}, le[4] = {leave, leave, leave, leave};
+  double inside[4] = {1.0, 1.0, 1.0, 1.0};
+  narrow_ray_children(node.lo_x, node.hi_x, o[0], inv[0], zero[0], pad, en, le, inside);
+  narrow_ray_children(node.lo_y, node.hi_y, o[1], inv[1], zero[1], pad, en, le, inside);
+  narrow_ray_children(node.lo_z, node.hi_z, o[2], inv[2], zero[2], pad, en, le, inside);
+  unsigned mask = 0;
+  for (unsigned k = 0; k < 4; ++k) mask |= static_cast<unsigned>((inside[k] != 0.0) & (en[k] <= le[k])) << k;
+  return mask & node.valid;
+}
+
 // A ray through the compact tree (MeshQueryOptions::ClosestPointTree::compact), without Embree:
 // depth-first over the 4-wide nodes, entering every child whose box, widened by 1e-7 of the
-// mesh's scale, the ray's segment [t_min, t_max] meets (a slab test in double), and testing the
-// clusters reached as Embree's callback does. Every cluster holding a triangle that the ray hits
-// or grazes is reached (its box holds the triangle; the widening covers the slab test's rounding
-// many times over), and a cluster the ray misses adds neither a hit nor a graze, so the crossings,
-// the hits and the first hit (ties to the lower triangle index) are those of the Embree scene.
+// mesh's scale, the ray's segment [t_min, t_max] meets (a slab test in double, four children at
+// once: find_ray_children), and testing the clusters reached as Embree's callback does. Every
+// cluster holding a triangle that the ray hits or grazes is reached (its box holds the triangle;
+// the widening covers the slab test's rounding many times over), and a cluster the ray misses adds
+// neither a hit nor a graze, so the crossings, the hits and the first hit (ties to the lower
+// triangle index) are those of the Embree scene.
 // Used for small deforming surfaces (Bvh::rays_on_compact), whose refits then need no Embree work.
 void trace_compact(const MeshQuery::Bvh& bvh, RayState& r) {
-  const Vec3& o = r.origin;
-  const Vec3& d = r.direction;
   const double pad = 1e-7 * bvh.scale;
-  std::array<double, 3> inv{};
-  for (int k = 0; k < 3; ++k) inv[static_cast<std::size_t>(k)] = d[k] != 0.0 ? 1.0 / d[k] : 0.0;
-  // Whether the ray's segment meets the box [lo - pad, hi + pad] (axis by axis; a direction
-  // component of 0 needs the origin within the slab).
-  const auto meets = [&](const MeshQuery::Bvh::Node4& node, unsigned k) {
-    const float lo[3] = {node.lo_x[k], node.lo_y[k], node.lo_z[k]};
-    const float hi[3] = {node.hi_x[k], node.hi_y[k], node.hi_z[k]};
-    double enter = r.t_min, leave = r.t_max;
-    if (r.mode == RayMode::first && r.first.triangle >= 0) leave = std::min(leave, r.first.t);
-    const double slack = 1e-9 * (std::abs(enter) + (std::isfinite(leave) ? std::abs(leave) : 0.0)) + 1e-300;
-    enter -= slack;
-    leave += slack;
-    for (int a = 0; a < 3; ++a) {
-      const double l = lo[a] - pad, h = hi[a] + pad;
-      if (d[a] == 0.0) {
-        if (o[a] < l || o[a] > h) return false;
-        continue;
-      }
-      double t0 = (l - o[a]) * inv[static_cast<std::size_t>(a)], t1 = (h - o[a]) * inv[static_cast<std::size_t>(a)];
-      if (t0 > t1) std::swap(t0, t1);
-      const double widen = 1e-9 * (std::abs(t0) + std::abs(t1));
-      enter = std::max(enter, t0 - widen);
-      leave = std::min(leave, t1 + widen);
-      if (!(enter <= leave)) return false;
-    }
-    return true;
-  };
+  double o[3], inv[3];
+  bool zero[3];
+  for (int k = 0; k < 3; ++k) {
+    o[k] = r.origin[k];
+    zero[k] = r.direction[k] == 0.0;
+    inv[k] = zero[k] ? 0.0 : 1.0 / r.direction[k];
+  }
   std::int32_t stack[4 * MeshQuery::Bvh::kMaxTreeDepth + 4];
   int top = 0;
   stack[top++] = bvh.root;
@@ -928,8 +967,15 @@ void trace_compact(const MeshQuery::Bvh& bvh, RayState& r) {
       continue;
     }
     const MeshQuery::Bvh::Node4& node = bvh.nodes[static_cast<std::size_t>(item)];
+    // The segment: [t_min, t_max], in first-hit mode cut at the best hit so far; padded.
+    double enter = r.t_min, leave = r.t_max;
+    if (r.mode == RayMode::first && r.first.triangle >= 0) leave = std::min(leave, r.first.t);
+    const double slack = 1e-9 * (std::abs(enter) + (std::isfinite(leave) ? std::abs(leave) : 0.0)) + 1e-300;
+    enter -= slack;
+    leave += slack;
+    const unsigned mask = find_ray_children(node, o, inv, zero, pad, enter, leave);
     for (unsigned k = 0; k < 4; ++k)
-      if ((node.valid & (1u << k)) != 0 && meets(node, k)) stack[top++] = node.child[k];
+      if ((mask & (1u << k)) != 0) stack[top++] = node.child[k];
   }
 }
 
@@ -999,8 +1045,17 @@ RayState make_ray(const MeshQuery::Bvh& bvh, const Vec3& origin, const Vec3& dir
   s.crossings = 0;
   s.grazed = false;
   s.margin = 1e-10 * ((origin - bvh.middle).norm() + bvh.scale);
-  const Vec3 unit = direction.normalized();
+  const double length = direction.norm();
+  const Vec3 unit = direction / length;
   s.unit_direction = {static_cast<float>(unit.x()), static_cast<float>(unit.y()), static_cast<float>(unit.z())};
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  s.s_lo = -kInf;
+  s.s_hi = kInf;
+  if (mode != RayMode::crossings) {
+    // (beyond float range the bound stays infinite)
+    if (std::abs(t_min * length) < 1e30) s.s_lo = round_down(t_min * length);
+    if (std::abs(t_max * length) < 1e30) s.s_hi = round_up(t_max * length);
+  }
   return s;
 }
 

@@ -3,10 +3,13 @@
 
 #include "fascicle/core/atomic_file.hpp"
 #include "fascicle/core/error.hpp"
+#include "vtk_smp.hpp"
 
 #include <vtkCallbackCommand.h>
 #include <vtkCellArray.h>
 #include <vtkCellData.h>
+#include <vtkCellType.h>
+#include <vtkCellTypes.h>
 #include <vtkCommand.h>
 #include <vtkDataArray.h>
 #include <vtkIdList.h>
@@ -137,6 +140,25 @@ vtkNew<vtkCellArray> make_cells(vtkIdType num_cells, vtkIdType num_ids,
   return cells;
 }
 
+// A vtkPolyData that lists its cell types from the cell sizes write_polydata knows instead of
+// asking every cell: VTK 9.1's XML writer calls GetCellTypes once per file, and vtkDataSet's
+// version builds the poly data's per-cell type map (BuildCells) and reads it cell by cell (about
+// a third of VTK's encoding work on the VH shank's 100k-triangle foot). The list is the one
+// vtkDataSet::GetCellTypes makes: each type once, in the order of first appearance in cell order
+// (vertices, lines, polygons, strips), with vtkPolyData's types (a 2-point line VTK_LINE, a longer
+// one VTK_POLY_LINE, a 3-point polygon VTK_TRIANGLE).
+class KnownTypesPolyData : public vtkPolyData {
+ public:
+  static KnownTypesPolyData* New();
+  vtkTypeMacro(KnownTypesPolyData, vtkPolyData)
+  void GetCellTypes(vtkCellTypes* types) override {
+    types->Reset();
+    for (const unsigned char t : cell_types) types->InsertNextType(t);
+  }
+  std::vector<unsigned char> cell_types;  // distinct, in order of first appearance
+};
+vtkStandardNewMacro(KnownTypesPolyData)
+
 // vtkXMLPolyDataWriter writing into a stream given by the caller (vtkXMLWriter keeps its output
 // stream in the protected member `Stream`, takes a stream already set as its output and rewinds
 // it; the writer releases it after each Write()).
@@ -163,14 +185,21 @@ std::string& get_encoding_buffer() {
 }  // namespace
 
 void write_polydata(const std::filesystem::path& path, const PolyData& data, VtpCompression compression) {
+  io_detail::use_sequential_vtk_smp();
   check_polydata(data);
   if (data.points.rows() > std::numeric_limits<std::int32_t>::max() ||
       data.triangles.size() > std::numeric_limits<std::int32_t>::max())
     throw_internal("polydata: more than 2^31 points or cell ids");
   vtkNew<vtkPoints> points;
   points->SetData(to_vtk_array("Points", data.points));
-  vtkNew<vtkPolyData> poly;
+  vtkNew<KnownTypesPolyData> poly;
   poly->SetPoints(points);
+  const auto add_type = [&](unsigned char t) {
+    if (std::find(poly->cell_types.begin(), poly->cell_types.end(), t) == poly->cell_types.end())
+      poly->cell_types.push_back(t);
+  };
+  for (const auto& line : data.lines) add_type(line.size() == 2 ? VTK_LINE : VTK_POLY_LINE);
+  if (data.triangles.rows() > 0) add_type(VTK_TRIANGLE);
   if (!data.lines.empty()) {
     vtkIdType ids = 0;
     for (const auto& line : data.lines) ids += static_cast<vtkIdType>(line.size());

@@ -2,6 +2,7 @@
 #include "fascicle/scene/scene_json.hpp"
 
 #include "fascicle/core/error.hpp"
+#include "fascicle/core/parallel.hpp"
 #include "fascicle/core/units.hpp"
 #include "fascicle/io/mesh_io.hpp"
 #include "fascicle/osim/osim_model.hpp"
@@ -10,7 +11,10 @@
 #include <nlohmann/json.hpp>
 
 #include <Eigen/Geometry>
+#include <exception>
 #include <fstream>
+#include <map>
+#include <optional>
 #include <sstream>
 
 namespace fascicle {
@@ -110,23 +114,81 @@ struct Reader {
   std::filesystem::path file;
   std::filesystem::path folder;
   double unit = 1.0;  // metres per file length unit
+  // Meshes read ahead (prefetch_meshes), by resolved path: the mesh or the error its reading threw.
+  struct Prefetched {
+    std::optional<TriMesh> mesh;
+    std::exception_ptr error;
+  };
+  std::map<std::string, Prefetched> prefetched;
 
   ErrorContext at(const std::string& pointer, std::string suggestion = {}) const {
     return {.file = file.string(), .json_path = pointer, .suggestion = std::move(suggestion)};
   }
 
-  TriMesh read_mesh_at(const std::string& name, const std::string& pointer, std::filesystem::path* resolved) const {
+  std::filesystem::path resolve(const std::string& name) const {
     std::filesystem::path p(name);
     if (p.is_relative()) p = folder / p;
+    return p;
+  }
+
+  LengthUnit get_length_unit() const {
+    if (unit == 1e-3) return LengthUnit::millimetre;
+    if (unit == 1e-2) return LengthUnit::centimetre;
+    return LengthUnit::metre;
+  }
+
+  // Reads the mesh files a scene names (bodies' "mesh" and "meshes", muscles' "mesh") in parallel
+  // before the scene is parsed in order; read_mesh_at then takes each from here. A file is read
+  // once however often it is named. Failures are kept and rethrown by read_mesh_at where the
+  // sequential reading would have thrown them (same message, same JSON pointer); a missing file
+  // is left to read_mesh_at's own check. Reading is most of a scene's parse time (the VH shank's
+  // 17 STL files) and the files are independent.
+  void prefetch_meshes(const json& doc) {
+    std::vector<std::string> names;
+    const auto add = [&](const json& v) {
+      if (v.is_string()) names.push_back(v.get<std::string>());
+    };
+    for (const char* list : {"bodies", "muscles"}) {
+      if (!doc.contains(list) || !doc.at(list).is_array()) continue;
+      for (const json& j : doc.at(list)) {
+        if (!j.is_object()) continue;
+        if (j.contains("mesh")) add(j.at("mesh"));
+        if (j.contains("meshes") && j.at("meshes").is_array())
+          for (const json& m : j.at("meshes")) add(m);
+      }
+    }
+    std::vector<std::string> paths;
+    for (const std::string& n : names) {
+      const std::string p = resolve(n).string();
+      if (prefetched.count(p) == 0 && std::filesystem::exists(p)) {
+        prefetched[p] = {};
+        paths.push_back(p);
+      }
+    }
+    std::vector<Prefetched> read(paths.size());
+    const LengthUnit u = get_length_unit();
+    parallel_for(paths.size(), [&](std::size_t i) {
+      try {
+        read[i].mesh = read_mesh(paths[i], u);
+      } catch (...) {
+        read[i].error = std::current_exception();
+      }
+    });
+    for (std::size_t i = 0; i < paths.size(); ++i) prefetched[paths[i]] = std::move(read[i]);
+  }
+
+  TriMesh read_mesh_at(const std::string& name, const std::string& pointer, std::filesystem::path* resolved) const {
+    const std::filesystem::path p = resolve(name);
     *resolved = p;
     if (!std::filesystem::exists(p))
       throw_bad_input("mesh file '" + p.string() + "' does not exist",
                       at(pointer, "paths are relative to the scene file's folder"));
     try {
-      LengthUnit u = LengthUnit::metre;
-      if (unit == 1e-3) u = LengthUnit::millimetre;
-      if (unit == 1e-2) u = LengthUnit::centimetre;
-      return read_mesh(p, u);
+      if (const auto it = prefetched.find(p.string()); it != prefetched.end()) {
+        if (it->second.error) std::rethrow_exception(it->second.error);
+        if (it->second.mesh) return *it->second.mesh;
+      }
+      return read_mesh(p, get_length_unit());
     } catch (const Error& e) {
       ErrorContext ctx = e.context();
       ctx.json_path = pointer;
@@ -168,7 +230,8 @@ SceneSpec parse_scene(const std::string& text, const std::filesystem::path& path
       if (b.is_object() && b.contains("name") && b["name"].is_string()) names["body"].push_back(b["name"]);
   validate_json(doc, get_scene_schema(registry), names, path.string());
 
-  Reader r{path, path.parent_path(), metres_per(parse_length_unit(doc.value("units", std::string("m"))))};
+  Reader r{path, path.parent_path(), metres_per(parse_length_unit(doc.value("units", std::string("m")))), {}};
+  if (!doc.contains("opensim_model")) r.prefetch_meshes(doc);
   SceneSpec spec;
   spec.source = path;
   spec.name = doc.value("name", path.stem().string());

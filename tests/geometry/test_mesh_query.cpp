@@ -12,6 +12,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cstdint>
 #include <cstring>
 #include <fstream>
@@ -388,6 +389,51 @@ TEST(MeshQuery, RaysAgainstBruteForce) {
     ASSERT_EQ(static_cast<long>(limited.size()), n_in);
   }
   EXPECT_GT(hit_count, 300);
+}
+
+// Short segments near the surface, as the winding propagation casts them (cast_ray_all over
+// (0, 1) of an edge p -> q), on both ray traversals: Embree's (a fresh query) and the compact
+// tree's (a refitted query of a small mesh). Every hit strictly inside the range must be found:
+// the screen drops triangles whose bounding sphere lies outside the segment's range, so segments
+// that end just before, on and just after a face, and that start on one, are included.
+TEST(MeshQuery, ShortSegmentsAgainstBruteForceOnBothTraversals) {
+  const TriMesh m = make_torus(0.04, 0.012, 40, 20);
+  const MeshQuery fresh(m);
+  MeshQuery refitted(m);
+  refitted.update_vertices(m.V);  // small mesh: rays through the compact tree from now on
+  std::mt19937_64 rng(33);
+  std::normal_distribution<double> g(0.0, 1.0);
+  std::uniform_int_distribution<Eigen::Index> face(0, m.F.rows() - 1);
+  int crossing_segments = 0;
+  for (int i = 0; i < 4000; ++i) {
+    const Eigen::Index f = face(rng);
+    const Vec3 c = (vertex(m, f, 0) + vertex(m, f, 1) + vertex(m, f, 2)) / 3.0;
+    const Vec3 dir = Vec3(g(rng), g(rng), g(rng)).normalized();
+    const double length = 0.001 * (0.2 + std::abs(g(rng)));
+    // the face centroid at t = 1 (on the open end), at t = 0 (the start), just inside the end,
+    // just beyond it, or somewhere in between
+    const double at = std::array<double, 5>{1.0, 0.0, 1.0 - 1e-9, 1.0 + 1e-9, 0.5}[i % 5];
+    const Vec3 o = c - at * length * dir;
+    const Vec3 d = length * dir;
+    std::vector<RayHit> expected;
+    for (const RayHit& h : brute_hits(m, o, d))
+      if (h.t > 0.0 && h.t < 1.0) expected.push_back(h);
+    crossing_segments += !expected.empty();
+    for (const MeshQuery* q : std::array<const MeshQuery*, 2>{&fresh, &refitted}) {
+      const std::vector<RayHit> all = q->cast_ray_all(o, d, 0.0, 1.0);
+      ASSERT_EQ(all.size(), expected.size()) << "segment " << i << (q == &fresh ? " (Embree)" : " (compact)");
+      for (std::size_t k = 0; k < all.size(); ++k) {
+        ASSERT_EQ(all[k].triangle, expected[k].triangle);
+        ASSERT_EQ(all[k].t, expected[k].t);
+      }
+      const std::optional<RayHit> first = q->cast_ray(o, d, 0.0, 1.0);
+      ASSERT_EQ(first.has_value(), !expected.empty());
+      if (first) {
+        ASSERT_EQ(first->triangle, expected.front().triangle);
+      }
+    }
+  }
+  EXPECT_GT(crossing_segments, 1000);
 }
 
 TEST(MeshQuery, CrossingNumberIsWindingNumberOfClosedMesh) {
