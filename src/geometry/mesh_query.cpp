@@ -867,7 +867,7 @@ void visit_ray_cluster(RayState* r, unsigned cluster, const RTCIntersectFunction
   constexpr unsigned K = MeshQuery::Bvh::kCluster;
   const unsigned first = r->bvh->slot_begin(cluster);
   const unsigned count = r->bvh->slot_end(cluster) - first;
-  // Exact (double) tests only for the triangles whose bounding sphere the line meets: the others
+  // Exact (double) tests only for the triangles whose bounding sphere the ray's range meets: the others
   // can neither be hit nor grazed.
   const double* anchor = r->bvh->anchors.data() + 3 * static_cast<std::size_t>(cluster);
   const Vec3 oa(r->origin.x() - anchor[0], r->origin.y() - anchor[1], r->origin.z() - anchor[2]);
@@ -1051,11 +1051,11 @@ RayState make_ray(const MeshQuery::Bvh& bvh, const Vec3& origin, const Vec3& dir
   constexpr float kInf = std::numeric_limits<float>::infinity();
   s.s_lo = -kInf;
   s.s_hi = kInf;
-  if (mode != RayMode::crossings) {
-    // (beyond float range the bound stays infinite)
-    if (std::abs(t_min * length) < 1e30) s.s_lo = round_down(t_min * length);
-    if (std::abs(t_max * length) < 1e30) s.s_hi = round_up(t_max * length);
-  }
+  // Every mode, crossings included: a triangle is hit or grazed only by the ray's part in
+  // [t_min, t_max] (intersect_ray_triangle), so a sphere wholly outside it can be screened out.
+  // (Beyond float range the bound stays infinite.)
+  if (std::abs(t_min * length) < 1e30) s.s_lo = round_down(t_min * length);
+  if (std::abs(t_max * length) < 1e30) s.s_hi = round_up(t_max * length);
   return s;
 }
 
