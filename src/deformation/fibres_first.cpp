@@ -392,9 +392,18 @@ struct Anderson {
   }
 };
 
+// Ring frames (FibresFirstOptions::surface_frame_stiffness): per loft ring, the rest centre of
+// the fibre particles anchoring it and its last fitted rotation (the next fit's warm start).
+struct RingFrames {
+  std::vector<Vec3> rest_centre;
+  std::vector<Quat> rotation;
+};
+
 // One muscle's linear system: K = sum_springs k A^T A (free rows) + m/h^2 I (dynamic) + contact
-// weights on the diagonal; factorised numerically again only when those diagonal terms change.
+// weights on the diagonal (+ the ring frames' constant diagonal); factorised numerically again
+// only when the contact or mass terms change.
 struct MuscleSystem {
+  RingFrames rings;
   std::vector<LocalSpring> springs;
   Anderson anderson;
   Eigen::MatrixXd plain;  // G(x) of the last iteration, free rows (nf x 3)
@@ -566,6 +575,22 @@ std::unique_ptr<FibresFirstSolver::Workspace> make_workspace(const FibresFirstMo
       const int a = m.free_index[sp.a - m.first_particle], b = m.free_index[sp.b - m.first_particle];
       if (a < 0 && b < 0) continue;  // between two prescribed particles: adds nothing to any row
       sys.springs.push_back({a, b, sp.a, sp.b, sp.stiffness, sp.rest_length_m});
+    }
+    // ring frames: the constant diagonal term of each ring vertex (add_ring_frame_targets)
+    const double ring_w = model_.options.surface_frame_stiffness;
+    if (ring_w > 0.0 && m.num_surface_particles > 0 && m.ring_frame_start.size() > 1) {
+      const int s0 = m.first_particle + m.num_fibres * model_.options.particles_per_fibre;
+      for (int v = 0; v < m.num_surface_particles; ++v) {
+        const int j = m.free_index[s0 + v - m.first_particle];
+        t.emplace_back(j, j, ring_w);
+      }
+      for (std::size_t r = 0; r + 1 < m.ring_frame_start.size(); ++r) {
+        Vec3 C = Vec3::Zero();
+        for (int k = m.ring_frame_start[r]; k < m.ring_frame_start[r + 1]; ++k)
+          C += model_.rest.row(m.ring_frame_particle[k]).transpose();
+        sys.rings.rest_centre.push_back(C / (m.ring_frame_start[r + 1] - m.ring_frame_start[r]));
+        sys.rings.rotation.push_back(Quat::Identity());
+      }
     }
     sys.K_springs.resize(nf, nf);
     sys.K_springs.setFromTriplets(t.begin(), t.end());  // lower triangle only
@@ -1400,6 +1425,58 @@ Vec3 calc_sliding_target(const FibresFirstSolver::Workspace& ws, int p, const st
   return t;
 }
 
+// The rotation R maximising tr(R^T A) (the rotation of the polar decomposition of A when
+// det A > 0), by the fixed-point iteration of Mueller, Bender, Chentanez and Macklin 2016 ("A
+// robust method to extract the rotational part of deformations", eq. 9), warm-started from q and
+// written back to it. Each step turns q by the axis-angle vector sum_i r_i x a_i / |sum_i r_i . a_i|
+// (r_i, a_i the columns of R and A); the fixed points are the stationary rotations, and the
+// maximum is the attracting one.
+Mat3 fit_rotation(const Mat3& A, Quat& q) {
+  for (int iteration = 0; iteration < 20; ++iteration) {
+    const Mat3 R = q.toRotationMatrix();
+    const Vec3 omega = (R.col(0).cross(A.col(0)) + R.col(1).cross(A.col(1)) + R.col(2).cross(A.col(2))) /
+                       (std::abs(R.col(0).dot(A.col(0)) + R.col(1).dot(A.col(1)) + R.col(2).dot(A.col(2))) + 1e-300);
+    const double angle = omega.norm();
+    if (!(angle > 1e-12)) break;
+    q = Quat(Eigen::AngleAxisd(angle, omega / angle)) * q;
+    q.normalize();
+  }
+  return q.toRotationMatrix();
+}
+
+// Ring frames (FibresFirstOptions::surface_frame_stiffness), local step of muscle m: per loft ring,
+// the best-fit rigid motion (rest -> snapshot) of the fibre particles anchoring the ring (their
+// centre c and rotation R, Procrustes), and for each ring vertex v the target c + R (X_v - C), the
+// rest ring moved with its anchors; w times the target is added to the vertex's row of B (its
+// diagonal term w is in the constant part of K). A shape-matching constraint in the projective
+// dynamics sense (Bouaziz et al. 2014) that acts on the ring only: the ring keeps its rest shape
+// and its orientation about the fibres relative to the muscle's interior, and the anchors are not
+// pulled by it.
+void add_ring_frame_targets(const FibresFirstModel& model, const FibreBundle& m, RingFrames& rings,
+                            const Points3& snapshot, double w, const int* position, RowRhs& B) {
+  const int K = model.options.surface_ring_points;
+  const int s0 = m.first_particle + m.num_fibres * model.options.particles_per_fibre;
+  const int num_rings = static_cast<int>(m.ring_frame_start.size()) - 1;
+  for (int r = 0; r < num_rings; ++r) {
+    const int begin = m.ring_frame_start[r], end = m.ring_frame_start[r + 1];
+    Vec3 c = Vec3::Zero();
+    for (int k = begin; k < end; ++k) c += snapshot.row(m.ring_frame_particle[k]).transpose();
+    c /= end - begin;
+    const Vec3& C = rings.rest_centre[r];
+    Mat3 A = Mat3::Zero();
+    for (int k = begin; k < end; ++k) {
+      const int p = m.ring_frame_particle[k];
+      A.noalias() += (snapshot.row(p).transpose() - c) * (model.rest.row(p).transpose() - C).transpose();
+    }
+    const Mat3 R = fit_rotation(A, rings.rotation[r]);
+    for (int v = r * K; v < (r + 1) * K; ++v) {
+      const int p = s0 + v;
+      const Vec3 target = c + R * (model.rest.row(p).transpose() - C);
+      B.row(position[m.free_index[p - m.first_particle]]).head<3>() += w * target.transpose();
+    }
+  }
+}
+
 // One local/global iteration of muscle mi from `snapshot` (all particles): spring and contact
 // targets (local), the prefactorised solve (global), then the volume step along
 // Y = -K^-1 dV/dx (Y refreshed on the first iteration of a round). This is the map G; its value is
@@ -1440,6 +1517,8 @@ double relax_muscle(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
     spring_vectors::calc(sys.springs.data() + s0, count, sx, sy, sz, model.rest, d);
     spring_vectors::add_to_rows(sys.springs.data() + s0, count, d, sx, sy, sz, position, rows, width);
   }
+  if (!sys.rings.rest_centre.empty())
+    add_ring_frame_targets(model, m, sys.rings, snapshot, o.surface_frame_stiffness, position, B);
   const double mass_term = m.particle_mass_kg * ctx.mass_scale;
   for (int j = 0; j < nf; ++j) {
     const int p = m.free[j];

@@ -126,9 +126,10 @@ void check_options(const FibresFirstOptions& o) {
       !(o.bone_attachment_distance_m >= 0.0) || !(std::abs(o.blend_a) <= 1.0) ||
       !(o.surface_margin_m >= 0.0) ||
       !(o.surface_rest_overlap_resolved_m >= 0.0) || !positive(o.surface_stiffness) ||
-      o.surface_anchor_count < 1)
+      o.surface_anchor_count < 1 || !(o.surface_frame_stiffness >= 0.0) ||
+      !std::isfinite(o.surface_frame_stiffness))
     throw_bad_input("invalid fibres-first options (density, weights, tolerances and time step must be "
-                "> 0; damping, margins and distances >= 0; |blend_a| <= 1)");
+                "> 0; damping, margins, distances and surface_frame_stiffness >= 0; |blend_a| <= 1)");
 }
 
 
@@ -432,6 +433,46 @@ void add_surface_bending_springs(const Triangles& triangles, const std::set<std:
   for (const auto& [a, b] : bend) add_spring(first + a, first + b);
 }
 
+// The second largest principal spread (standard deviation, m) of a set of rest points: 0 for
+// points on a line or at one point, where a best-fit rotation is undetermined.
+double calc_second_spread(const std::set<int>& points, const Points3& rest) {
+  Vec3 c = Vec3::Zero();
+  for (int p : points) c += rest.row(p).transpose();
+  c /= static_cast<double>(points.size());
+  Mat3 H = Mat3::Zero();
+  for (int p : points) {
+    const Vec3 d = rest.row(p).transpose() - c;
+    H += d * d.transpose();
+  }
+  const Vec3 e = Eigen::SelfAdjointEigenSolver<Mat3>(H, Eigen::EigenvaluesOnly).eigenvalues();
+  return std::sqrt(std::max(0.0, e[1]) / static_cast<double>(points.size()));
+}
+
+// Ring frames (FibresFirstOptions::surface_frame_stiffness): the fibre particles whose best-fit
+// rigid motion moves each loft ring (vertices first_vertex + r * per_ring + k), from
+// `ring_anchors` (per ring, the anchors of its vertices). The end rings of a belly whose fibres
+// converge to a tendon are often anchored by one cluster of particles (on gait2392, 6 particles
+// at one point for some muscles), and a strap's by one line across it, whose rotations are
+// undetermined: while a ring's set spreads less than a fifth of the ring's own RMS radius in its
+// second principal direction, the anchors of the next rings on both sides are added.
+void set_ring_frames(FibreBundle& m, const std::vector<std::set<int>>& ring_anchors, const Points3& rest,
+                     int first_vertex, int per_ring) {
+  const int rings = static_cast<int>(ring_anchors.size());
+  m.ring_frame_start = {0};
+  m.ring_frame_particle.clear();
+  for (int r = 0; r < rings; ++r) {
+    const auto ring = rest.middleRows(first_vertex + r * per_ring, per_ring);
+    const double radius = std::sqrt((ring.rowwise() - ring.colwise().mean()).squaredNorm() / per_ring);
+    std::set<int> set = ring_anchors[r];
+    for (int d = 1; d < rings && calc_second_spread(set, rest) < 0.2 * radius; ++d) {
+      if (r - d >= 0) set.insert(ring_anchors[r - d].begin(), ring_anchors[r - d].end());
+      if (r + d < rings) set.insert(ring_anchors[r + d].begin(), ring_anchors[r + d].end());
+    }
+    m.ring_frame_particle.insert(m.ring_frame_particle.end(), set.begin(), set.end());
+    m.ring_frame_start.push_back(static_cast<int>(m.ring_frame_particle.size()));
+  }
+}
+
 // Surface particles (FibresFirstOptions::surface_particles): every muscle with a loft surface gets
 // its loft vertices as free particles after its fibre particles (all particle indices after it
 // shift), each tied by springs at rest length to its surface_anchor_count nearest fibre particles
@@ -487,6 +528,8 @@ void add_surface_particles(FibresFirstModel& model) {
       };
       const int k = std::clamp(o.surface_anchor_count, 1, nfp);
       std::vector<std::pair<double, int>> near(nfp);
+      const int per_ring = o.surface_ring_points;
+      std::vector<std::set<int>> ring_anchors(extra[mi] / per_ring);
       for (int v = 0; v < extra[mi]; ++v) {
         const int q = s0 + v;
         rest.row(q) = S.row(v);
@@ -497,7 +540,9 @@ void add_surface_particles(FibresFirstModel& model) {
         anchor[q] = near[0].second;
         fibre_t[q] = fibre_t[near[0].second];
         for (int j = 0; j < k; ++j) add_spring(q, near[j].second);
+        for (int j = 0; j < k; ++j) ring_anchors[v / per_ring].insert(near[j].second);
       }
+      set_ring_frames(m, ring_anchors, rest, s0, per_ring);
       std::set<std::pair<int, int>> edges;
       for (Eigen::Index t = 0; t < m.surface_triangles.rows(); ++t)
         for (int e = 0; e < 3; ++e) {

@@ -87,6 +87,9 @@ class FibresFirst final : public MuscleGroupRepresentation {
     o.surface_particles = flag("surface_particles", o.surface_particles);
     o.surface_stiffness = option("surface_stiffness", o.surface_stiffness);
     o.surface_bending = flag("surface_bending", false);
+    // NaN: not given (the default, which acts only with surface particles)
+    const double frame_stiffness = option("surface_frame_stiffness", std::numeric_limits<double>::quiet_NaN());
+    if (!std::isnan(frame_stiffness)) o.surface_frame_stiffness = frame_stiffness;
     o.dynamic = flag("dynamic", false);
     o.damping_per_s = option("damping", o.damping_per_s);
     o.max_iterations = static_cast<int>(option("iterations", o.max_iterations));
@@ -105,6 +108,9 @@ class FibresFirst final : public MuscleGroupRepresentation {
     if (o.surface_bending && !o.surface_particles)
       throw_bad_input("fibres_first option surface_bending needs surface_particles (the bending springs join surface particles)",
                       {.object = first.name, .suggestion = "add \"surface_particles\": 1, or leave surface_bending out"});
+    if (frame_stiffness > 0.0 && !o.surface_particles)
+      throw_bad_input("fibres_first option surface_frame_stiffness needs surface_particles (the ring frames pull surface particles)",
+                      {.object = first.name, .suggestion = "add \"surface_particles\": 1, or leave surface_frame_stiffness out"});
 
     std::vector<FibreBundleSpec> specs;
     for (MuscleIndex mi : muscles) {

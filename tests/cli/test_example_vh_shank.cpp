@@ -765,9 +765,9 @@ TEST(ExampleVhShank, FibresFirstSurfaceSeparationWithoutTheStallRuleKeepsOverlap
 }
 
 // The fibres-first options configure one solver for all the scene's fibres-first muscles: a
-// switch other than 0 or 1, surface_bending without surface_particles, and a value given to one
-// muscle only (the others keep the default) are each rejected with exit code 3 before any frame,
-// naming the option (and, for the conflict, both muscles).
+// switch other than 0 or 1, surface_bending or surface_frame_stiffness without surface_particles,
+// and a value given to one muscle only (the others keep the default) are each rejected with exit
+// code 3 before any frame, naming the option (and, for the conflict, both muscles).
 TEST(ExampleVhShank, FibresFirstGroupOptionsAreValidated) {
   const fs::path scene = example_dir() / "scene.json";
   ASSERT_TRUE(fs::exists(scene));
@@ -782,6 +782,7 @@ TEST(ExampleVhShank, FibresFirstGroupOptionsAreValidated) {
   const std::vector<Case> cases = {
       {"flag", ", \"separate_surfaces\": 2", "", "separate_surfaces = 2 is not 0 (off) or 1 (on)"},
       {"bending", ", \"surface_bending\": 1", "", "surface_bending needs surface_particles"},
+      {"frames", ", \"surface_frame_stiffness\": 100", "", "surface_frame_stiffness needs surface_particles"},
       {"conflict", "", ", \"along_stiffness\": 50", "along_stiffness differs between muscles"},
   };
   for (const Case& c : cases) {

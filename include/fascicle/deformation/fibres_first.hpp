@@ -129,10 +129,10 @@ struct FibresFirstOptions {
   // brings the VH shank's scene overlap from 8.3 mm to 0 at every frame (volume <= 3e-4,
   // penetration 0) but costs about 1.8x the default path's CPU time per frame (idle, end of
   // session 10, alternated runs: 14.0-14.1 ms against 7.3-8.0 ms; docs/benchmarks.md), and on
-  // gait2392's generated bellies the whole walk runs with volume <= 0.44 % and no bone
-  // penetration, but overlaps beyond 0.5 mm remain in 175 of its 211 frames (session 12; the
-  // synthetic leg of scene/demo.hpp, which failed at frame 39 at 25 Hz in session 9, was not
-  // re-measured).
+  // gait2392's generated bellies the whole walk runs with volume <= 0.17 % and no bone
+  // penetration, but overlaps beyond 0.5 mm remain in 116 of its 211 frames (session 13, with the
+  // ring frames, surface_frame_stiffness; 175 before; the synthetic leg of scene/demo.hpp, which
+  // failed at frame 39 at 25 Hz in session 9, was not re-measured).
   bool surface_particles = false;
   int surface_anchor_count = 6;
   double surface_stiffness = 400.0;
@@ -142,6 +142,15 @@ struct FibresFirstOptions {
   // the walk from 1.24 to 0.84 mm (measured before the push cap of session 12), but it costs the
   // VH shank 27 % more CPU per frame.
   bool surface_bending = false;
+  // Surface particles only (0: off): ring frames. Each loft ring is pulled, with this stiffness
+  // (N/m) per vertex, towards its rest ring moved by the best-fit rigid motion of the fibre
+  // particles anchoring it (a shape-matching target in the local step; a constant diagonal term
+  // in the global step, so no fill). The loft then follows the rotation of the muscle's interior
+  // instead of twisting about its fibres or folding between its anchors (docs/representations.md,
+  // "Session 13"). Default 100 since session 13: on gait2392 with separation the overlap growth's
+  // median over the walk fell from 2.67 to 0.54 mm at 60 Hz (1.43 to 0.75 mm at 50 Hz); 200 and
+  // 400 failed one of the two walks; the VH shank keeps overlap 0 at -1 % instructions per frame.
+  double surface_frame_stiffness = 100.0;
   double surface_rest_overlap_resolved_m = 5e-3;
   double contact_weight = 100.0;  // contact spring = this x along_stiffness
   int max_contact_rounds = 4;     // solve -> detect new contacts -> solve rounds per frame
@@ -208,6 +217,12 @@ struct FibreBundle {
   // edges, measured in the rest mid-section. Loft surface: the particles nearest to the surface
   // vertices (muscle_contact_band is not used)
   std::vector<int> contact_particles;
+  // Surface particles only: per loft ring r (options.surface_rings rings of
+  // options.surface_ring_points vertices), the fibre particles anchoring its vertices (model
+  // indices, ascending, without repeats) in [ring_frame_start[r], ring_frame_start[r + 1]) of
+  // ring_frame_particle; empty without surface particles.
+  std::vector<int> ring_frame_start;
+  std::vector<int> ring_frame_particle;
   Triangles surface_triangles;
   int num_surface_vertices() const { return static_cast<int>(surface_weight_start.size()) - 1; }
   double rest_volume_m3 = 0.0;    // enclosed by the rest display surface
