@@ -112,19 +112,32 @@ TrianglePoint closest_point_on_triangle(const Vec3& p, const Vec3& a, const Vec3
 
 namespace {
 
+// A ray whose direction makes an angle below this (radians) with a triangle's plane is treated as
+// lying in the plane (intersect_ray_triangle): at 1e-8 the hit's t keeps ~6 correct digits for a
+// ray 100 triangle sizes long, below it the watertight test's weights are dominated by rounding.
+constexpr double kInPlaneTilt = 1e-8;
+
 // For a ray whose line lies in the plane of triangle abc: whether some t in [t_min, t_max] puts
 // origin + t direction on the closed triangle. Computed in the 2D projection that drops the axis
 // of the normal's largest component (the in-plane direction keeps a non-zero image there), where
 // each edge's half-plane bounds t on one side. Rounding can only decide a touch that is off by a
 // few ulps of the coordinates, far inside the padding of any box that holds the triangle, so a
 // traversal that skips the triangle's box never misses a graze another traversal reports. A
-// degenerate triangle (zero normal) is reported as touched, as before this test existed.
+// degenerate triangle (zero normal) is reported as touched when its corners' span along the ray
+// meets the range.
 bool coplanar_ray_touches_triangle(const Vec3& origin, const Vec3& direction, const Vec3& a,
                                    const Vec3& b, const Vec3& c, double t_min, double t_max) {
   const Vec3 n = (b - a).cross(c - a);
   int kn = 0;
   n.cwiseAbs().maxCoeff(&kn);
-  if (n[kn] == 0.0) return true;
+  if (n[kn] == 0.0) {
+    // Degenerate: touched when the corners' span along the ray meets [t_min, t_max] (the ray's
+    // line already meets the triangle's line or lies along it: u = v = w = 0).
+    const double d2 = direction.squaredNorm();
+    const double ta = (a - origin).dot(direction) / d2, tb = (b - origin).dot(direction) / d2,
+                 tc = (c - origin).dot(direction) / d2;
+    return std::max({ta, tb, tc}) >= t_min && std::min({ta, tb, tc}) <= t_max;
+  }
   const int kx = (kn + 1) % 3, ky = (kn + 2) % 3;
   const double orientation = n[kn] > 0.0 ? 1.0 : -1.0;  // the projected triangle's winding
   const std::array<const Vec3*, 3> corner{&a, &b, &c};
@@ -174,9 +187,13 @@ std::optional<RayHit> intersect_ray_triangle(const Vec3& origin, const Vec3& dir
   const double w = bx * ay - by * ax;
   if ((u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0)) return std::nullopt;
   const double det = u + v + w;
-  if (det == 0.0) {
-    // The ray's line lies in the triangle's plane (or the triangle is degenerate): no hit, but a
-    // graze when the part of the ray in (t_min, t_max) touches the triangle.
+  const Vec3 n = (b - a).cross(c - a);
+  if (det == 0.0 || std::abs(n.dot(direction)) <= kInPlaneTilt * n.norm() * direction.norm()) {
+    // The ray's line lies in the triangle's plane, within kInPlaneTilt (or the triangle is
+    // degenerate). Then u, v and w are rounding noise and their blend of the corners' t would
+    // be too (it can lie several circumradii from the triangle along the ray, where no traversal
+    // looks): no hit, but a graze when the part of the ray in [t_min, t_max] touches the
+    // triangle.
     if (on_edge != nullptr) *on_edge = coplanar_ray_touches_triangle(origin, direction, a, b, c, t_min, t_max);
     return std::nullopt;
   }
@@ -185,7 +202,6 @@ std::optional<RayHit> intersect_ray_triangle(const Vec3& origin, const Vec3& dir
   RayHit hit;
   hit.t = t;
   hit.barycentric = Vec3(u, v, w) / det;
-  const Vec3 n = (b - a).cross(c - a);
   hit.normal = n.normalized();
   hit.front_facing = n.dot(direction) < 0.0;
   if (on_edge != nullptr) *on_edge = (u == 0.0 || v == 0.0 || w == 0.0) || n.dot(direction) == 0.0;
@@ -413,9 +429,16 @@ unsigned find_candidates(const float* __restrict block, float px, float py, floa
 // anchor. The rounding error of the cross product is a few float ulps of |c - o| |d|; the caller's
 // margin is 2^-18 (|o - anchor| + 2 * cluster extent). Vectorised like find_candidates.
 // [s_lo, s_hi] (d a unit vector): the part of the line that matters, as distances from o along d
-// (-inf, +inf for the whole line). A point of the sphere lies within r of c, so its distance along
-// d is within r of s = (c - o) . d: spheres with s + r + margin < s_lo or s - r - margin > s_hi
-// are left out too (the margin covers the few float ulps of |c - o| in s as well).
+// (-inf, +inf for the whole line). A point of the sphere lies within r of c along d, but the t of
+// a hit is not always the line's crossing point: for a ray almost in the triangle's plane the
+// watertight test's t is a convex combination of the corners' t_i = (v_i - o)[z] / d[z] (z the
+// direction's dominant axis, |d[z]| >= 1/sqrt(3)), which differ from the corners' distances along
+// d by up to sqrt(3) times their distance from the line. With |v_i - c| <= r and c within
+// reach = r + margin of the line (the first test), |t_i - s| <= |(v_i - c).d| + sqrt(3) (|lat(v_i
+// - c)| + reach) <= 2 r + sqrt(3) reach < 4 reach (s = (c - o) . d; Cauchy-Schwarz for the first
+// two terms). So spheres with s + 4 reach < s_lo or s - 4 reach > s_hi are left out too: neither a
+// hit nor an in-plane graze of their triangle can have t in the range (the margin also covers the
+// few float ulps of |c - o| in s).
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(__SANITIZE_ADDRESS__)
 __attribute__((target_clones("avx2", "default")))
 #endif
@@ -433,8 +456,9 @@ unsigned find_ray_candidates(const float* __restrict block, float ox, float oy, 
     const float x = wy * dz - wz * dy, y = wz * dx - wx * dz, z = wx * dy - wy * dx;
     const float reach = r[k] + margin;
     const float along = wx * dx + wy * dy + wz * dz;
-    mask |= static_cast<unsigned>((x * x + y * y + z * z <= reach * reach * d2) & (along + reach >= s_lo) &
-                                  (along - reach <= s_hi))
+    const float span = 4.0f * reach;
+    mask |= static_cast<unsigned>((x * x + y * y + z * z <= reach * reach * d2) & (along + span >= s_lo) &
+                                  (along - span <= s_hi))
             << k;
   }
   return mask;
@@ -822,9 +846,8 @@ struct RayState {
   bool grazed;                   // RayMode::crossings: a hit on an edge/vertex or in-plane
   double margin;                 // absolute margin of the bounding-sphere screen
   std::array<float, 3> unit_direction;  // direction / |direction| in float, for the screen
-  // The screen's range along unit_direction, t_min |direction| and t_max |direction| rounded
-  // outward; the whole line (-inf, +inf) when crossing rays count (their in-plane grazes are
-  // flagged whatever the range, see intersect_slot).
+  // The screen's range along unit_direction: t_min |direction| and t_max |direction| rounded
+  // outward (every mode; see find_ray_candidates).
   float s_lo, s_hi;
 };
 

@@ -436,6 +436,75 @@ TEST(MeshQuery, ShortSegmentsAgainstBruteForceOnBothTraversals) {
   EXPECT_GT(crossing_segments, 1000);
 }
 
+TEST(RayCasts, NearlyInPlaneRaysAgainstBruteForceOnBothTraversals) {
+  // Rays almost in a face's plane: the watertight test's t is then a blend of the corners' t along
+  // the dominant axis, not the line's crossing point, so the range screen must allow for it. Hits
+  // in a range and crossing counts (with their grazes) must equal the exhaustive answers on
+  // Embree's traversal and on the compact tree's.
+  const TriMesh m = make_torus(0.04, 0.012, 40, 20);
+  const MeshQuery fresh(m);
+  MeshQuery refitted(m);
+  refitted.update_vertices(m.V);  // small mesh: rays through the compact tree from now on
+  std::mt19937_64 rng(35);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  std::uniform_int_distribution<Eigen::Index> face(0, m.F.rows() - 1);
+  int in_range_hits = 0, grazed = 0;
+  for (int i = 0; i < 6000; ++i) {
+    const Eigen::Index f = face(rng);
+    const Vec3 a = vertex(m, f, 0), b = vertex(m, f, 1), c = vertex(m, f, 2);
+    // From a point of the face's plane towards another one (both rounded, so within a few ulps
+    // of the plane), as affine combinations of the corners; every other ray tilted out of the
+    // plane by 1e-6.
+    std::uniform_real_distribution<double> affine(-3.0, 3.0);
+    Vec3 o = a + affine(rng) * (b - a) + affine(rng) * (c - a);
+    const Vec3 p = a + affine(rng) * (b - a) + affine(rng) * (c - a);
+    Vec3 d = p - o;
+    if (d.norm() < 1e-4) continue;
+    if (i % 2 == 1) d += 1e-6 * d.norm() * (b - a).cross(c - a).normalized();
+    // ranges ending anywhere within four circumradii of the face's centroid along the ray
+    const Vec3 centroid = (a + b + c) / 3.0;
+    const double radius = std::max({(a - centroid).norm(), (b - centroid).norm(), (c - centroid).norm()});
+    const double s_t = (centroid - o).dot(d) / d.squaredNorm();
+    double t_max = s_t + (8.0 * unit(rng) - 4.0) * radius / d.norm();
+    if (!(t_max > 0.0)) {  // keep the range non-empty: start earlier along the same line
+      const double shift = 1.0 - t_max;
+      o -= shift * d;
+      t_max += shift;
+    }
+    std::vector<RayHit> expected;
+    for (const RayHit& h : brute_hits(m, o, d))
+      if (h.t > 0.0 && h.t < t_max) expected.push_back(h);
+    in_range_hits += static_cast<int>(expected.size());
+    // exhaustive crossing count from the point (t > 0), undecided on any graze
+    bool any_graze = false;
+    int crossings = 0;
+    for (Eigen::Index k = 0; k < m.F.rows(); ++k) {
+      bool on_edge = false;
+      const auto h = intersect_ray_triangle(o, d, vertex(m, k, 0), vertex(m, k, 1), vertex(m, k, 2), 0.0,
+                                            std::numeric_limits<double>::infinity(), &on_edge);
+      any_graze = any_graze || on_edge;
+      if (h) crossings += h->front_facing ? -1 : 1;
+    }
+    grazed += any_graze;
+    for (const MeshQuery* q : std::array<const MeshQuery*, 2>{&fresh, &refitted}) {
+      const char* which = q == &fresh ? " (Embree)" : " (compact)";
+      const std::vector<RayHit> all = q->cast_ray_all(o, d, 0.0, t_max);
+      ASSERT_EQ(all.size(), expected.size()) << "ray " << i << which;
+      for (std::size_t k = 0; k < all.size(); ++k) {
+        ASSERT_EQ(all[k].triangle, expected[k].triangle) << "ray " << i << which;
+        ASSERT_EQ(all[k].t, expected[k].t) << "ray " << i << which;
+      }
+      const std::optional<int> w = q->calc_crossing_number(o, d);
+      ASSERT_EQ(w.has_value(), !any_graze) << "ray " << i << which;
+      if (w) {
+        ASSERT_EQ(*w, crossings) << "ray " << i << which;
+      }
+    }
+  }
+  EXPECT_GT(in_range_hits, 1000);
+  EXPECT_GT(grazed, 4);
+}
+
 TEST(MeshQuery, CrossingNumberIsWindingNumberOfClosedMesh) {
   // Every primitive must be counted exactly once per ray: the signed sum is 1 inside, 0 outside.
   const TriMesh m = make_icosphere(1.0, 3);

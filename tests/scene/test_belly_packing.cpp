@@ -118,8 +118,11 @@ TEST(BellyPacking, BellyPressedAgainstABoxBoneEndsOutsideIt) {
   EXPECT_TRUE(report.converged);
   EXPECT_LE(calc_depth_inside(get_mesh(bellies[0]), box), kTolerance);
   const TriMesh packed = get_mesh(bellies[0]);
-  for (Eigen::Index v = 0; v < packed.V.rows(); ++v)
-    if (packed.V(v, 2) > 0.05 && packed.V(v, 2) < 0.15) EXPECT_LT(packed.V(v, 0), 0.015 + kTolerance);
+  for (Eigen::Index v = 0; v < packed.V.rows(); ++v) {
+    if (packed.V(v, 2) > 0.05 && packed.V(v, 2) < 0.15) {
+      EXPECT_LT(packed.V(v, 0), 0.015 + kTolerance);
+    }
+  }
   expect_solid_with_volume(bellies[0]);
   EXPECT_EQ(count_fibre_points_outside(bellies[0], calc_belly_fibres(bellies[0]), kTolerance), 0);
   // The belly takes all of it: the bone did not move, and the belly grew on the far side.

@@ -59,8 +59,9 @@ TrianglePoint closest_point_on_triangle(const Vec3& p, const Vec3& a, const Vec3
 // through a shared edge hits at least one of the two triangles. Returns a hit with t in
 // (t_min, t_max), or nothing. `on_edge` (optional) is set when the ray passes exactly through an
 // edge or vertex (a barycentric coordinate is exactly 0), when the ray lies in the triangle's
-// plane and its part with t in [t_min, t_max] touches the triangle, or when the triangle is
-// degenerate and the ray's line meets its line.
+// plane (within 1e-8 rad: no hit is reported then, its t would be rounding noise) and its part
+// with t in [t_min, t_max] touches the triangle, or when the triangle is degenerate and its
+// corners' span along the ray meets the range.
 std::optional<RayHit> intersect_ray_triangle(const Vec3& origin, const Vec3& direction,
                                              const Vec3& a, const Vec3& b, const Vec3& c,
                                              double t_min = 0.0,
