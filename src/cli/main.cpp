@@ -4,8 +4,10 @@
 #include "fascicle/core/error.hpp"
 #include "fascicle/core/log.hpp"
 #include "fascicle/core/parallel.hpp"
+#include "fascicle/io/polydata.hpp"
 
 #include <cstdio>
+#include <cstdlib>
 #include <exception>
 #include <optional>
 
@@ -60,6 +62,9 @@ int main(int argc, char** argv) {
     fascicle::init_logging(quiet_flag ? -1 : verbose);
     const fascicle::ThreadLimit limit(threads);
     fascicle::use_single_threaded_blas();
+    if (!fascicle::use_sequential_vtk_loops())
+      spdlog::debug("VTK's parallel loops keep the backend '{}' (VTK_SMP_BACKEND_IN_USE)",
+                    std::getenv("VTK_SMP_BACKEND_IN_USE") ? std::getenv("VTK_SMP_BACKEND_IN_USE") : "?");
     if (run.action) run.action();
     return static_cast<int>(ExitCode::ok);
   } catch (const fascicle::Error& e) {

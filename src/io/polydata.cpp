@@ -173,7 +173,8 @@ vtkStandardNewMacro(StreamPolyDataWriter)
 // One encoding buffer per thread, kept between files: VTK's many small writes (and its seeks back
 // to fill in offsets) go into memory whose capacity is reused, instead of a fresh string stream
 // per file that grows by doubling and is then copied out twice (str(), GetOutputString()).
-// Re-entrance: VTK's range computations run vtkSMPTools on TBB, so a thread waiting inside
+// Re-entrance: unless use_sequential_vtk_loops() was called (the CLI does), VTK's range
+// computations run vtkSMPTools on TBB, so a thread waiting inside
 // Write() may start another write_polydata() of the same parallel loop on the same thread. The
 // buffer is therefore only borrowed: moved into the call's own stream before encoding and given
 // back after the file is written, never used in place across a call that can wait on TBB.
@@ -184,8 +185,9 @@ std::string& get_encoding_buffer() {
 
 }  // namespace
 
+bool use_sequential_vtk_loops() { return io_detail::use_sequential_vtk_smp(); }
+
 void write_polydata(const std::filesystem::path& path, const PolyData& data, VtpCompression compression) {
-  io_detail::use_sequential_vtk_smp();
   check_polydata(data);
   if (data.points.rows() > std::numeric_limits<std::int32_t>::max() ||
       data.triangles.size() > std::numeric_limits<std::int32_t>::max())

@@ -4,13 +4,15 @@
 
 #include <vtkSMPTools.h>
 
-#include <mutex>
+#include <cstdlib>
+#include <string>
 
 namespace fascicle::io_detail {
 
-void use_sequential_vtk_smp() {
-  static std::once_flag once;
-  std::call_once(once, [] { vtkSMPTools::SetBackend("Sequential"); });
+bool use_sequential_vtk_smp() {
+  // The user's choice of backend (VTK's own environment variable) is left alone.
+  if (std::getenv("VTK_SMP_BACKEND_IN_USE") == nullptr) vtkSMPTools::SetBackend("Sequential");
+  return std::string(vtkSMPTools::GetBackend()) == "Sequential";
 }
 
 }  // namespace fascicle::io_detail

@@ -52,6 +52,15 @@ enum class VtpCompression { lz4, none };
 void write_polydata(const std::filesystem::path& path, const PolyData& data,
                     VtpCompression compression = VtpCompression::lz4);
 
+// Makes VTK's own parallel loops (vtkSMPTools) run sequentially in this process and returns
+// whether they now do. The .vtp writer's only parallel work there is each array's value range (a
+// few thousand values), while fascicle already writes a frame's files in parallel, so VTK's TBB
+// backend only adds a nested split and a thread-local set-up per array; minimum and maximum do not
+// depend on the order, so the files are the same either way. The setting is process-wide and VTK
+// does not guard it: call this once at start-up, before other threads use VTK (the fascicle CLI
+// does). An explicit VTK_SMP_BACKEND_IN_USE in the environment is left alone.
+bool use_sequential_vtk_loops();
+
 // Reads a .vtp with vtkXMLPolyDataReader: points, polylines, triangles (polygons with more than
 // three points are kept as fans) and all double/float/int point and cell arrays as doubles.
 // Throws fascicle::Error (bad_input naming the file) when it cannot be read.
