@@ -118,8 +118,9 @@ struct Reader {
   struct Prefetched {
     std::optional<TriMesh> mesh;
     std::exception_ptr error;
+    int uses = 0;  // how often the scene names the file: the last use takes the mesh (no copy)
   };
-  std::map<std::string, Prefetched> prefetched;
+  mutable std::map<std::string, Prefetched> prefetched;
 
   ErrorContext at(const std::string& pointer, std::string suggestion = {}) const {
     return {.file = file.string(), .json_path = pointer, .suggestion = std::move(suggestion)};
@@ -158,12 +159,10 @@ struct Reader {
       }
     }
     std::vector<std::string> paths;
+    std::map<std::string, int> uses;
     for (const std::string& n : names) {
       const std::string p = resolve(n).string();
-      if (prefetched.count(p) == 0 && std::filesystem::exists(p)) {
-        prefetched[p] = {};
-        paths.push_back(p);
-      }
+      if (uses[p]++ == 0 && std::filesystem::exists(p)) paths.push_back(p);
     }
     std::vector<Prefetched> read(paths.size());
     const LengthUnit u = get_length_unit();
@@ -174,7 +173,10 @@ struct Reader {
         read[i].error = std::current_exception();
       }
     });
-    for (std::size_t i = 0; i < paths.size(); ++i) prefetched[paths[i]] = std::move(read[i]);
+    for (std::size_t i = 0; i < paths.size(); ++i) {
+      read[i].uses = uses[paths[i]];
+      prefetched[paths[i]] = std::move(read[i]);
+    }
   }
 
   TriMesh read_mesh_at(const std::string& name, const std::string& pointer, std::filesystem::path* resolved) const {
@@ -186,7 +188,12 @@ struct Reader {
     try {
       if (const auto it = prefetched.find(p.string()); it != prefetched.end()) {
         if (it->second.error) std::rethrow_exception(it->second.error);
-        if (it->second.mesh) return *it->second.mesh;
+        if (it->second.mesh) {
+          if (--it->second.uses > 0) return *it->second.mesh;
+          TriMesh mesh = std::move(*it->second.mesh);
+          prefetched.erase(it);
+          return mesh;
+        }
       }
       return read_mesh(p, get_length_unit());
     } catch (const Error& e) {
