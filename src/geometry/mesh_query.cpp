@@ -1057,6 +1057,13 @@ RayState make_ray(const MeshQuery::Bvh& bvh, const Vec3& origin, const Vec3& dir
     throw_bad_input("ray cast needs a finite origin and a finite, non-zero direction",
                     {.suggestion = "check the ray's origin and direction"});
   }
+  // Embree's traversal starts at t = 0 (tnear >= 0) and the other paths honour the range as
+  // given, so a negative t_min would make them disagree; NaN would make every test false.
+  if (!(t_min >= 0.0 && t_min <= t_max)) {
+    throw_bad_input("ray cast needs a range 0 <= t_min <= t_max (got t_min = " + std::to_string(t_min) +
+                        ", t_max = " + std::to_string(t_max) + ")",
+                    {.suggestion = "cast from the origin (t_min = 0) or move the origin back along the ray"});
+  }
   RayState s{};
   s.bvh = &bvh;
   s.origin = origin;

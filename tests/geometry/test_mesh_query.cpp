@@ -505,6 +505,21 @@ TEST(RayCasts, NearlyInPlaneRaysAgainstBruteForceOnBothTraversals) {
   EXPECT_GT(grazed, 4);
 }
 
+TEST(RayCasts, RangesOutsideZeroToTMaxAreBadInput) {
+  const TriMesh m = make_icosphere(1.0, 2);
+  const MeshQuery q(m);
+  const Vec3 o(0.0031, -0.002, -3.0), d(0.0123, 0.0457, 1.0);
+  ASSERT_TRUE(q.cast_ray(o, d, 0.0, 10.0).has_value());
+  EXPECT_EQ(q.cast_ray_all(o, d, 0.0, 10.0).size(), 2u);
+  EXPECT_TRUE(q.cast_ray_all(o, d, 1.0, 1.0).empty());  // an empty range is allowed
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  for (const auto& [lo, hi] : std::array<std::pair<double, double>, 4>{
+           {{-1.0, 10.0}, {2.0, 1.0}, {nan, 10.0}, {0.0, nan}}}) {
+    EXPECT_THROW(q.cast_ray(o, d, lo, hi), Error) << lo << " " << hi;
+    EXPECT_THROW(q.cast_ray_all(o, d, lo, hi), Error) << lo << " " << hi;
+  }
+}
+
 TEST(MeshQuery, CrossingNumberIsWindingNumberOfClosedMesh) {
   // Every primitive must be counted exactly once per ray: the signed sum is 1 inside, 0 outside.
   const TriMesh m = make_icosphere(1.0, 3);

@@ -121,11 +121,13 @@ class MeshQuery {
   // Signed distance: -distance inside, +distance outside (sign from calc_is_inside).
   double calc_signed_distance(const Vec3& p) const;
 
-  // First hit along origin + t*direction with t in (t_min, t_max), or nothing.
+  // First hit along origin + t*direction with t in (t_min, t_max), or nothing. The range must
+  // satisfy 0 <= t_min <= t_max (t_max may be infinite); otherwise fascicle::Error (bad_input).
   std::optional<RayHit> cast_ray(const Vec3& origin, const Vec3& direction, double t_min = 0.0,
                                  double t_max = std::numeric_limits<double>::infinity()) const;
 
-  // Every hit along the ray with t in (t_min, t_max), sorted by t (then triangle index).
+  // Every hit along the ray with t in (t_min, t_max), sorted by t (then triangle index). Same
+  // range rules as cast_ray.
   std::vector<RayHit> cast_ray_all(
       const Vec3& origin, const Vec3& direction, double t_min = 0.0,
       double t_max = std::numeric_limits<double>::infinity()) const;
