@@ -10,6 +10,7 @@
 #include "fascicle/sparse/cholmod_view.hpp"
 #include "fascicle/sparse/simplicial_solve.hpp"
 
+#include <Eigen/Geometry>
 #include <Eigen/SVD>
 #include <cholmod.h>
 
@@ -476,6 +477,22 @@ struct SurfaceSeparation {
   std::vector<double> travel;
   std::vector<VecX> tested_gap, tested_travel;
   std::vector<Points3> tested_at;
+  // The same bound in b's body frame (the gap does not change when one rigid motion moves both
+  // the point and the surface): to_body[b] is the inverse of the rigid motion best fitting b's
+  // rest surface to its surface at the last fit (Umeyama 1991), and body_travel[b] the sum over
+  // the updates of the largest vertex displacement in that frame (at a refit: the new frame's
+  // vertices against the old frame's previous ones), so a muscle that moves rigidly adds
+  // nothing. b is refitted only once its world travel since the last fit exceeds
+  // body_refit_after_m (in between, the body displacements equal the world ones). Per ordered
+  // pair, per vertex of a: its position in b's body frame and body_travel[b] at its last test.
+  // A vertex is skipped when either bound keeps it beyond the margin (gait2392: the frame's bone
+  // motion, ~20 mm, made the world bound retest nearly every vertex at each frame's start).
+  static constexpr double body_refit_after_m = 1e-3;
+  std::vector<Points3> rest_surface;
+  std::vector<Transform> to_body;
+  std::vector<double> body_travel, fitted_travel;
+  std::vector<VecX> tested_body_travel;
+  std::vector<Points3> tested_body_at;
   std::vector<SurfaceContact> contacts;
   std::unordered_map<long long, int> keys;  // (a, b, v) -> index into contacts
   std::vector<std::vector<PushKernel>> kernels;  // per muscle, per display vertex
@@ -973,6 +990,12 @@ void init_surface_separation(const FibresFirstModel& model,
   ss.tested_gap.assign(static_cast<std::size_t>(nm) * nm, VecX());
   ss.tested_travel.assign(static_cast<std::size_t>(nm) * nm, VecX());
   ss.tested_at.assign(static_cast<std::size_t>(nm) * nm, Points3());
+  ss.rest_surface = ss.surface;
+  ss.to_body.assign(nm, Transform::Identity());
+  ss.body_travel.assign(nm, 0.0);
+  ss.fitted_travel.assign(nm, 0.0);
+  ss.tested_body_travel.assign(static_cast<std::size_t>(nm) * nm, VecX());
+  ss.tested_body_at.assign(static_cast<std::size_t>(nm) * nm, Points3());
   ss.rest_gap.assign(static_cast<std::size_t>(nm) * nm, VecX());
   ss.resolved.assign(static_cast<std::size_t>(nm) * nm, 1);
   std::vector<Eigen::AlignedBox3d> box(nm);
@@ -1012,7 +1035,21 @@ void update_surfaces(const FibresFirstModel& model,
     const FibreBundle& m = model.muscles[mi];
     Points3 now = systems[mi]->surface_map * x.middleRows(m.first_particle, m.num_particles);
     if (now == ss.surface[mi]) return;  // unchanged: the query already holds these vertices
-    ss.travel[mi] += std::sqrt((now - ss.surface[mi]).rowwise().squaredNorm().maxCoeff());
+    const double moved = std::sqrt((now - ss.surface[mi]).rowwise().squaredNorm().maxCoeff());
+    ss.travel[mi] += moved;
+    if (!(ss.travel[mi] - ss.fitted_travel[mi] > SurfaceSeparation::body_refit_after_m)) {
+      ss.body_travel[mi] += moved;  // the same body frame: rigid, so the world displacements
+    } else {
+      Transform to_body;
+      to_body.matrix() = Eigen::umeyama(now.transpose(), ss.rest_surface[mi].transpose(), false);
+      double largest2 = 0.0;
+      for (Eigen::Index v = 0; v < now.rows(); ++v)
+        largest2 = std::max(largest2, (to_body * Vec3(now.row(v).transpose()) -
+                                       ss.to_body[mi] * Vec3(ss.surface[mi].row(v).transpose())).squaredNorm());
+      ss.body_travel[mi] += std::sqrt(largest2);
+      ss.to_body[mi] = to_body;
+      ss.fitted_travel[mi] = ss.travel[mi];
+    }
     ss.surface[mi] = std::move(now);
     ss.query[mi]->update_vertices(ss.surface[mi]);
   });
@@ -1060,6 +1097,8 @@ int detect_surface_contacts(const FibresFirstModel& model,
         ss.tested_gap[ab] = VecX::Constant(S.rows(), -std::numeric_limits<double>::infinity());
         ss.tested_travel[ab] = VecX::Zero(S.rows());
         ss.tested_at[ab] = S;
+        ss.tested_body_travel[ab] = VecX::Zero(S.rows());
+        ss.tested_body_at[ab] = S;
       }
     }
     for (int v = 0; v < static_cast<int>(S.rows()); ++v) {
@@ -1069,12 +1108,19 @@ int detect_surface_contacts(const FibresFirstModel& model,
         const std::size_t ab = static_cast<std::size_t>(a) * nm + b;
         const double bound = ss.tested_gap[ab][v] - (p - Vec3(ss.tested_at[ab].row(v).transpose())).norm() -
                              (ss.travel[b] - ss.tested_travel[ab][v]);
-        if (bound > o.surface_margin_m * (1.0 + 1e-9) + 1e-12) continue;  // cannot be within the margin
+        const double beyond = o.surface_margin_m * (1.0 + 1e-9) + 1e-12;
+        if (bound > beyond) continue;  // cannot be within the margin
+        const Vec3 z = ss.to_body[b] * p;
+        const double body_bound = ss.tested_gap[ab][v] - (z - Vec3(ss.tested_body_at[ab].row(v).transpose())).norm() -
+                                  (ss.body_travel[b] - ss.tested_body_travel[ab][v]);
+        if (body_bound > beyond) continue;
         ClosestPoint cp;
         const double gap = calc_signed_gap(*ss.query[b], p, cp);
         ss.tested_gap[ab][v] = gap;
         ss.tested_travel[ab][v] = ss.travel[b];
         ss.tested_at[ab].row(v) = p.transpose();
+        ss.tested_body_travel[ab][v] = ss.body_travel[b];
+        ss.tested_body_at[ab].row(v) = z.transpose();
         if (gap < o.surface_margin_m) found[a].push_back({v, b, gap, cp});
       }
     }
