@@ -1275,11 +1275,14 @@ bool calc_particle_contact_step(const FibresFirstModel& model, const SurfaceCont
 
 // Surface-particle contact targets of this iteration (Jacobi, like the pairs): each contact's
 // projection (calc_particle_contact_step) from the snapshot, accumulated into the per-particle
-// mean targets.
+// mean targets. `active` (optional, per muscle): only the contacts of an active muscle are needed
+// (the others' rows are read by no solve this iteration); a particle's sum takes the same terms in
+// the same order either way.
 void add_surface_particle_targets(const FibresFirstModel& model, FibresFirstSolver::Workspace& ws,
-                                  const Points3& snapshot) {
+                                  const Points3& snapshot, const std::vector<char>* active = nullptr) {
   if (!ws.surfaces.enabled) return;
   for (const SurfaceContact& c : ws.surfaces.contacts) {
+    if (active && !(*active)[c.a] && !(*active)[c.b]) continue;
     int pv = -1, pf[3];
     Vec3 n;
     double lambda = 0.0;
@@ -1398,9 +1401,10 @@ void update_factors(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
 
 // Muscle-muscle targets of this iteration (Jacobi): each pair pushed apart symmetrically to its
 // allowed distance (all of the way by the free one when the other is fixed); per particle, the
-// mean over its pairs.
+// mean over its pairs. `active` (optional, per muscle): only the pairs of an active muscle are set
+// (see add_surface_particle_targets).
 void set_pair_targets(const FibresFirstModel& model, FibresFirstSolver::Workspace& ws,
-                      const Points3& snapshot) {
+                      const Points3& snapshot, const std::vector<char>* active = nullptr) {
   // only the rows written in the last iteration are non-zero
   for (int p : ws.target_rows) {
     ws.pair_target.row(p).setZero();
@@ -1408,6 +1412,7 @@ void set_pair_targets(const FibresFirstModel& model, FibresFirstSolver::Workspac
   }
   ws.target_rows.clear();
   for (const MusclePair& pr : ws.pairs) {
+    if (active && !(*active)[model.muscle_of[pr.p]] && !(*active)[model.muscle_of[pr.q]]) continue;
     const Vec3 d = snapshot.row(pr.p) - snapshot.row(pr.q);
     const double dist = d.norm();
     Vec3 tp = snapshot.row(pr.p), tq = snapshot.row(pr.q);
@@ -1976,8 +1981,8 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
         for (int mi = 0; mi < nm; ++mi)
           if (ran[mi]) rows_of(snapshot, mi) = rows_of(x, mi);
       }
-      set_pair_targets(model, ws, snapshot);
-      add_surface_particle_targets(model, ws, snapshot);
+      set_pair_targets(model, ws, snapshot, &active);
+      add_surface_particle_targets(model, ws, snapshot, &active);
       parallel_for(static_cast<std::size_t>(nm), [&](std::size_t mi) {
         if (!active[mi]) return;
         steps[mi] = relax_muscle(ctx, ws, static_cast<int>(mi), first[mi] != 0, snapshot, x,
