@@ -426,12 +426,22 @@ struct MusclePair {
 // some contact particle has moved more than skin/2 since then, so every pair closer than the
 // margin now is in it; between rebuilds a detection is one pass over the list instead of a k-d
 // tree build and one radius query per particle.
+//
+// Partial rebuilds (since session 13): each contact particle has its own reference position
+// (built_at), and the list holds every pair of different muscles whose reference positions are
+// within margin + skin. When only a few particles (the movers) have moved more than skin/2 from
+// theirs, only the movers get new references and new pairs: their old pairs are dropped and a
+// k-d tree of all reference positions is queried around each mover. Pairs between other
+// particles keep their references and stay right, so the list still holds every pair closer
+// than the margin now, and a detection (which reads the list in (p, q) order) finds the same
+// pairs as after a full rebuild.
 struct PairCandidates {
   std::vector<int> ids;          // contact particles of all muscles (model indices)
-  Points3 built_at;              // their positions at the last build (#ids x 3)
+  Points3 built_at;              // their reference positions (#ids x 3)
   std::vector<MusclePair> list;  // p < q, allowed = min(margin, rest distance), sorted by (p, q)
   bool valid = false;
-  int builds = 0;                // since the solver was made (diagnostics)
+  int builds = 0;                // full rebuilds since the solver was made (diagnostics)
+  int partial_builds = 0;        // partial rebuilds (diagnostics)
 };
 
 // A display-surface contact: vertex v of muscle a against the point of triangle `triangle` of
@@ -786,12 +796,47 @@ void refresh_pair_candidates(const FibresFirstModel& model, const Points3& x, Pa
     for (const FibreBundle& m : model.muscles)
       c.ids.insert(c.ids.end(), m.contact_particles.begin(), m.contact_particles.end());
   const Eigen::Index n = static_cast<Eigen::Index>(c.ids.size());
+  const double radius = margin + skin;
   if (c.valid) {
     const double limit2 = 0.25 * skin * skin;
-    bool moved = false;
-    for (Eigen::Index j = 0; j < n && !moved; ++j)
-      moved = (x.row(c.ids[j]) - c.built_at.row(j)).squaredNorm() > limit2;
-    if (!moved) return;
+    std::vector<Eigen::Index> movers;
+    for (Eigen::Index j = 0; j < n; ++j)
+      if ((x.row(c.ids[j]) - c.built_at.row(j)).squaredNorm() > limit2) movers.push_back(j);
+    if (movers.empty()) return;
+    if (static_cast<Eigen::Index>(movers.size()) * 8 < n) {  // a few movers: partial rebuild
+      std::vector<char> is_mover(model.num_particles(), 0);
+      for (Eigen::Index j : movers) {
+        c.built_at.row(j) = x.row(c.ids[j]);
+        is_mover[c.ids[j]] = 1;
+      }
+      c.list.erase(std::remove_if(c.list.begin(), c.list.end(),
+                                  [&](const MusclePair& pr) { return is_mover[pr.p] || is_mover[pr.q]; }),
+                   c.list.end());
+      const PointCloud cloud{c.built_at};
+      PointTree tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(12));
+      tree.buildIndex();
+      std::vector<std::pair<std::size_t, double>> hits;
+      nanoflann::SearchParams params;
+      params.sorted = false;
+      for (Eigen::Index j : movers) {
+        const int a = c.ids[j];
+        const Vec3 xa = c.built_at.row(j);
+        hits.clear();
+        tree.radiusSearch(xa.data(), radius * radius, hits, params);
+        for (const auto& [k, d2] : hits) {
+          const int b = c.ids[k];
+          if (model.muscle_of[b] == model.muscle_of[a]) continue;
+          if (is_mover[b] && b < a) continue;  // both movers: added once, from the larger index
+          const int p = std::min(a, b), q = std::max(a, b);
+          const double allowed = std::min(margin, (model.rest.row(p) - model.rest.row(q)).norm());
+          if (allowed > 1e-12) c.list.push_back({p, q, allowed});
+        }
+      }
+      std::sort(c.list.begin(), c.list.end(),
+                [](const MusclePair& a, const MusclePair& b) { return a.p != b.p ? a.p < b.p : a.q < b.q; });
+      ++c.partial_builds;
+      return;
+    }
   }
   c.built_at.resize(n, 3);
   for (Eigen::Index j = 0; j < n; ++j) c.built_at.row(j) = x.row(c.ids[j]);
@@ -802,7 +847,6 @@ void refresh_pair_candidates(const FibresFirstModel& model, const Points3& x, Pa
   std::vector<std::pair<std::size_t, double>> hits;
   nanoflann::SearchParams params;
   params.sorted = false;
-  const double radius = margin + skin;
   for (Eigen::Index j = 0; j < n; ++j) {
     const int p = c.ids[j];
     const Vec3 xp = c.built_at.row(j);
