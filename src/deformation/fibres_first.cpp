@@ -531,11 +531,30 @@ struct BoneContacts {
   }
 };
 
+// Whole muscles skipped by the bone detection (since session 13). For muscle m and bone b, after
+// a pass over m's free particles, slack = min over them of (clearance - distance moved since the
+// last exact test): each particle is culled while it moves less than its clearance, so all of m
+// are culled while every particle has moved less than slack since that pass. In b's frame a
+// particle moves by at most its world displacement since then (travel: the sum over the
+// detections of m's largest displacement) plus what the change of b's motion does to it:
+// |X_now^-1 x - X_then^-1 x| <= |E y_c - y_c| + |R_E - I| r for E = X_now^-1 X_then, y_c the
+// pass's centre of m's particles in b's frame and r their radius around it. When that bound is
+// below slack the pass would cull every particle: it is skipped, with the same results.
+struct BoneCull {
+  std::vector<double> travel;  // per muscle
+  Points3 last_x;              // positions at the last detection (empty: none yet)
+  // per muscle * bones + bone, at the last pass
+  std::vector<double> slack, travel_then, radius;
+  std::vector<Vec3> centre;  // world
+  std::vector<Transform> motion;
+};
+
 struct FibresFirstSolver::Workspace {
   std::vector<std::unique_ptr<MuscleSystem>> systems;  // per muscle
   BoneContacts bone_contacts;
   std::vector<Points3> checked_at;  // per bone: last exactly tested position (bone rest frame)
   std::vector<VecX> clearance;      // per bone: its distance to the bone then (inside: -depth)
+  BoneCull bone_cull;
   std::vector<MusclePair> pairs;
   std::unordered_set<long long> pair_keys;
   PairCandidates candidates;
@@ -608,6 +627,15 @@ std::unique_ptr<FibresFirstSolver::Workspace> make_workspace(const FibresFirstMo
   }
   ws.checked_at.assign(model_.num_bones(), model_.rest);
   ws.clearance = calc_start_clearance(model_);
+  {
+    const std::size_t nmb = model_.muscles.size() * static_cast<std::size_t>(model_.num_bones());
+    ws.bone_cull.travel.assign(model_.muscles.size(), 0.0);
+    ws.bone_cull.slack.assign(nmb, -std::numeric_limits<double>::infinity());
+    ws.bone_cull.travel_then.assign(nmb, 0.0);
+    ws.bone_cull.radius.assign(nmb, 0.0);
+    ws.bone_cull.centre.assign(nmb, Vec3::Zero());
+    ws.bone_cull.motion.assign(nmb, Transform::Identity());
+  }
   ws.bone_contacts.clear(N);
   init_surface_separation(model_, ws.systems, ws.surfaces);
   ws.pair_target = Points3::Zero(N, 3);
@@ -671,73 +699,122 @@ Vec3 calc_bone_contact_normal(const FibresFirstModel& model, const Vec3& local, 
 // added and reports the deepest penetration beyond rest over all particles.
 // `checked_at` / `clearance` (per bone, per particle) cache the last exact test (clearance: the
 // distance then, minus the depth when inside): a particle that
-// was outside at distance c (bone frame) and has moved less than c since cannot be inside.
+// was outside at distance c (bone frame) and has moved less than c since cannot be inside. A
+// muscle whose particles are all culled that way for a bone is skipped as a whole (BoneCull).
 int detect_bone_contacts(const FrameContext& c, const Points3& x, BoneContacts& contacts,
                          std::vector<Points3>& checked_at, std::vector<VecX>& clearance,
-                         bool add, std::vector<double>* max_depth_per_muscle,
+                         BoneCull& cull, bool add, std::vector<double>* max_depth_per_muscle,
                          std::vector<char>* added_muscle = nullptr,
                          std::vector<char>* inside_muscle = nullptr) {
   const FibresFirstModel& model = c.model;
   const double margin = model.options.bone_margin_m;
+  const int nm = static_cast<int>(model.muscles.size()), nb = model.num_bones();
+  // each muscle's largest displacement since the last detection, and its free particles' centre
+  // (middle of their box) and radius about it
+  std::vector<Vec3> centre(nm, Vec3::Zero());
+  std::vector<double> radius_now(nm, 0.0);
+  for (int mi = 0; mi < nm; ++mi) {
+    const FibreBundle& m = model.muscles[mi];
+    double largest2 = 0.0;
+    Eigen::AlignedBox3d box;
+    for (int p = m.first_particle; p < m.first_particle + m.num_particles; ++p) {
+      if (model.role[p] != ParticleRole::free) continue;
+      if (cull.last_x.rows() == x.rows()) largest2 = std::max(largest2, (x.row(p) - cull.last_x.row(p)).squaredNorm());
+      box.extend(Vec3(x.row(p).transpose()));
+    }
+    cull.travel[mi] += std::sqrt(largest2);
+    if (box.isEmpty()) continue;
+    centre[mi] = box.center();
+    for (int p = m.first_particle; p < m.first_particle + m.num_particles; ++p)
+      if (model.role[p] == ParticleRole::free)
+        radius_now[mi] = std::max(radius_now[mi], (Vec3(x.row(p).transpose()) - centre[mi]).norm());
+  }
+  cull.last_x = x;
   int added = 0;
   for (int b = 0; b < model.num_bones(); ++b) {
     const MeshQuery& bone = *model.bones[b];
     const Transform X_rest_now = c.motions[b].inverse();
-    for (int p = 0; p < model.num_particles(); ++p) {
-      // fixed particles follow their bone and cannot be moved: neither contacts nor measured.
-      // A particle inside the bone at rest (depth d0) may stay as deep: only depth beyond d0
-      // counts, and its contact plane lies at depth d0 - margin (its clearance is 0: never culled)
-      if (model.role[p] != ParticleRole::free) continue;
-      const double rest_depth = model.rest_bone_depth[b][p];
-      const Vec3 local = X_rest_now * Vec3(x.row(p).transpose());
-      const double moved = (local - checked_at[b].row(p).transpose()).norm();
-      if (moved < clearance[b][p]) continue;  // cannot have reached the bone
-      // the surface lies within |last distance| + moved of the particle: a bounded query, and
-      // nothing within it means outside by at least that much
-      const double radius = std::abs(clearance[b][p]) + moved + 1e-9;
-      const ClosestPoint cp = bone.calc_closest_point(local, radius);
-      checked_at[b].row(p) = local.transpose();
-      if (cp.triangle < 0) {
-        clearance[b][p] = radius;
-        continue;
+    for (int mi = 0; mi < nm; ++mi) {
+      const std::size_t mb = static_cast<std::size_t>(mi) * nb + b;
+      if (cull.slack[mb] > 0.0) {
+        double bound = cull.travel[mi] - cull.travel_then[mb];
+        if (c.motions[b].matrix() != cull.motion[mb].matrix()) {  // b moved since the pass
+          const Transform E = X_rest_now * cull.motion[mb];
+          const Vec3 yc = cull.motion[mb].inverse() * cull.centre[mb];
+          const double turn = std::sqrt(std::max(0.0, 3.0 - E.linear().trace()));  // |R - I|
+          bound += (E * yc - yc).norm() + (turn + 1e-12) * cull.radius[mb];
+        }
+        if (bound < cull.slack[mb] * (1.0 - 1e-9) - 1e-12) continue;  // every particle culled
       }
-      clearance[b][p] = cp.distance;
-      Vec3 face_normal;
-      if (!detail::calc_is_behind_bone(bone, local, cp, &face_normal)) continue;
-      clearance[b][p] = -cp.distance;  // inside: minus the depth (never culls)
-      if (cp.distance <= rest_depth) continue;  // not deeper than at rest
-      // flagged whether or not a contact slot is free (a third bone finds both slots taken)
-      if (inside_muscle) (*inside_muscle)[model.muscle_of[p]] = 1;
-      if (max_depth_per_muscle) {
-        double& d = (*max_depth_per_muscle)[model.muscle_of[p]];
-        d = std::max(d, cp.distance - rest_depth);
-      }
-      if (!add) continue;
-      // a free slot, and not a second contact with the same bone
-      int slot = -1;
-      bool held_by_b = false;
-      for (int s = 0; s < BoneContacts::slots; ++s) {
-        held_by_b = held_by_b || contacts.bone[s][p] == b;
-        if (slot < 0 && contacts.bone[s][p] < 0) slot = s;
-      }
-      const Vec3 n = calc_bone_contact_normal(model, local, cp, face_normal);
-      if (held_by_b) {
-        // inside a bone it is already held against: the contact's plane (set where the particle
-        // entered) no longer fits where it is now; move the plane to the current closest point
-        for (int s = 0; s < BoneContacts::slots; ++s)
-          if (contacts.bone[s][p] == b) {
-            contacts.target_rest[s][p] = cp.point + (margin - rest_depth) * n;
-            contacts.normal_rest[s][p] = n;
-          }
+      double slack = std::numeric_limits<double>::infinity();
+      const FibreBundle& m = model.muscles[mi];
+      for (int p = m.first_particle; p < m.first_particle + m.num_particles; ++p) {
+        // fixed particles follow their bone and cannot be moved: neither contacts nor measured.
+        // A particle inside the bone at rest (depth d0) may stay as deep: only depth beyond d0
+        // counts, and its contact plane lies at depth d0 - margin (its clearance is 0: never culled)
+        if (model.role[p] != ParticleRole::free) continue;
+        const double rest_depth = model.rest_bone_depth[b][p];
+        const Vec3 local = X_rest_now * Vec3(x.row(p).transpose());
+        const double moved = (local - checked_at[b].row(p).transpose()).norm();
+        if (moved < clearance[b][p]) {  // cannot have reached the bone
+          slack = std::min(slack, clearance[b][p] - moved);
+          continue;
+        }
+        // the surface lies within |last distance| + moved of the particle: a bounded query, and
+        // nothing within it means outside by at least that much
+        const double radius = std::abs(clearance[b][p]) + moved + 1e-9;
+        const ClosestPoint cp = bone.calc_closest_point(local, radius);
+        checked_at[b].row(p) = local.transpose();
+        if (cp.triangle < 0) {
+          clearance[b][p] = radius;
+          slack = std::min(slack, radius);
+          continue;
+        }
+        clearance[b][p] = cp.distance;
+        slack = std::min(slack, cp.distance);
+        Vec3 face_normal;
+        if (!detail::calc_is_behind_bone(bone, local, cp, &face_normal)) continue;
+        clearance[b][p] = -cp.distance;  // inside: minus the depth (never culls)
+        slack = 0.0;
+        if (cp.distance <= rest_depth) continue;  // not deeper than at rest
+        // flagged whether or not a contact slot is free (a third bone finds both slots taken)
+        if (inside_muscle) (*inside_muscle)[model.muscle_of[p]] = 1;
+        if (max_depth_per_muscle) {
+          double& d = (*max_depth_per_muscle)[model.muscle_of[p]];
+          d = std::max(d, cp.distance - rest_depth);
+        }
+        if (!add) continue;
+        // a free slot, and not a second contact with the same bone
+        int slot = -1;
+        bool held_by_b = false;
+        for (int s = 0; s < BoneContacts::slots; ++s) {
+          held_by_b = held_by_b || contacts.bone[s][p] == b;
+          if (slot < 0 && contacts.bone[s][p] < 0) slot = s;
+        }
+        const Vec3 n = calc_bone_contact_normal(model, local, cp, face_normal);
+        if (held_by_b) {
+          // inside a bone it is already held against: the contact's plane (set where the particle
+          // entered) no longer fits where it is now; move the plane to the current closest point
+          for (int s = 0; s < BoneContacts::slots; ++s)
+            if (contacts.bone[s][p] == b) {
+              contacts.target_rest[s][p] = cp.point + (margin - rest_depth) * n;
+              contacts.normal_rest[s][p] = n;
+            }
+          if (added_muscle) (*added_muscle)[model.muscle_of[p]] = 1;
+          continue;
+        }
+        if (slot < 0) continue;
+        contacts.bone[slot][p] = b;
+        contacts.target_rest[slot][p] = cp.point + (margin - rest_depth) * n;
+        contacts.normal_rest[slot][p] = n;
         if (added_muscle) (*added_muscle)[model.muscle_of[p]] = 1;
-        continue;
+        ++added;
       }
-      if (slot < 0) continue;
-      contacts.bone[slot][p] = b;
-      contacts.target_rest[slot][p] = cp.point + (margin - rest_depth) * n;
-      contacts.normal_rest[slot][p] = n;
-      if (added_muscle) (*added_muscle)[model.muscle_of[p]] = 1;
-      ++added;
+      cull.slack[mb] = slack;
+      cull.travel_then[mb] = cull.travel[mi];
+      cull.centre[mb] = centre[mi];
+      cull.radius[mb] = radius_now[mi];
+      cull.motion[mb] = c.motions[b];
     }
   }
   return added;
@@ -1729,7 +1806,7 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
     best.x = x;
     best.contacts = ws.bone_contacts;
   };
-  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr);
+  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, ws.bone_cull, true, nullptr);
   if (ss.enabled) revalidate_far_bone_contacts(ctx, x, ws.bone_contacts);
   project_onto_bones();
   push_pairs_apart();
@@ -1765,7 +1842,7 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
     restore_volumes();
     // the pushes may have moved particles into bones: detect those too (a second contact slot
     // when the particle already holds one)
-    detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr);
+    detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, ws.bone_cull, true, nullptr);
     revalidate_far_bone_contacts(ctx, x, ws.bone_contacts);
   }
   project_onto_bones();
@@ -1797,7 +1874,7 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
     ++info.final_passes;
     restore_volumes();
     push_surfaces_apart();
-    detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr);
+    detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, ws.bone_cull, true, nullptr);
     revalidate_far_bone_contacts(ctx, x, ws.bone_contacts);
     project_onto_bones();
     error = worst_volume_error();
@@ -1824,7 +1901,7 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
     bool projected = false;
     for (int k = 0; k < 4; ++k) {
       std::vector<char> inside(nm, 0);
-      detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr, nullptr,
+      detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, ws.bone_cull, true, nullptr, nullptr,
                            &inside);
       if (std::find(inside.begin(), inside.end(), 1) == inside.end()) break;
       revalidate_far_bone_contacts(ctx, x, ws.bone_contacts);
@@ -1973,7 +2050,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
   // surface contacts kept from the previous frame (see the end of calc_frame) stay active; with
   // separation, kept bone contacts far from their particle are re-evaluated first
   if (ws.surfaces.enabled) revalidate_far_bone_contacts(ctx, x, ws.bone_contacts);
-  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr);
+  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, ws.bone_cull, true, nullptr);
   detect_muscle_pairs(model, x, ws.candidates, ws.pairs, ws.pair_keys, true, nullptr);
   detect_surface_contacts(model, ws.systems, x, ws.surfaces, true, nullptr, nullptr);
   const int nm = static_cast<int>(model.muscles.size());
@@ -2110,7 +2187,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
     if (round + 1 == o.max_contact_rounds) break;
     for (int mi = 0; mi < nm; ++mi) touched[mi] = steps[mi] >= o.step_tolerance;
     const std::size_t pairs_before = ws.pairs.size();
-    const int added_bone = detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance,
+    const int added_bone = detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, ws.bone_cull,
                                                 true, nullptr, &touched);
     const int added_pairs = detect_muscle_pairs(model, x, ws.candidates, ws.pairs, ws.pair_keys, true, nullptr);
     const int added_surf = detect_surface_contacts(model, ws.systems, x, ws.surfaces, true, nullptr,
@@ -2128,7 +2205,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
   // results and checks
   std::vector<FibreBundleFrame> frames(nm);
   std::vector<double> depth(nm, 0.0), overlap(nm, 0.0);
-  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, false, &depth);
+  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, ws.bone_cull, false, &depth);
   std::vector<MusclePair> no_pairs;
   std::unordered_set<long long> no_keys;
   detect_muscle_pairs(model, x, ws.candidates, no_pairs, no_keys, false, &overlap);
