@@ -430,11 +430,13 @@ struct MusclePair {
 // Partial rebuilds (since session 13): each contact particle has its own reference position
 // (built_at), and the list holds every pair of different muscles whose reference positions are
 // within margin + skin. When only a few particles (the movers) have moved more than skin/2 from
-// theirs, only the movers get new references and new pairs: their old pairs are dropped and a
-// k-d tree of all reference positions is queried around each mover. Pairs between other
-// particles keep their references and stay right, so the list still holds every pair closer
-// than the margin now, and a detection (which reads the list in (p, q) order) finds the same
-// pairs as after a full rebuild.
+// theirs, only the movers get new references and new pairs: their old pairs are dropped, and
+// each mover's new partners are found in the k-d tree of the last full build (the particles
+// whose reference has not changed since) and in a small k-d tree of the particles whose
+// reference has. Pairs between other particles keep their references and stay right, so the
+// list still holds every pair closer than the margin now, and a detection (which reads the list
+// in (p, q) order) finds the same pairs as after a full rebuild. A full rebuild once more than
+// an eighth of the particles have new references.
 struct PairCandidates {
   std::vector<int> ids;          // contact particles of all muscles (model indices)
   Points3 built_at;              // their reference positions (#ids x 3)
@@ -442,6 +444,13 @@ struct PairCandidates {
   bool valid = false;
   int builds = 0;                // full rebuilds since the solver was made (diagnostics)
   int partial_builds = 0;        // partial rebuilds (diagnostics)
+  // the last full build: its reference positions, their k-d tree, and the particles (positions
+  // in ids) whose reference has changed since
+  Points3 full_at;
+  std::unique_ptr<PointCloud> full_cloud;
+  std::unique_ptr<PointTree> full_tree;
+  std::vector<Eigen::Index> rereferenced;
+  std::vector<char> is_rereferenced;  // per position in ids
 };
 
 // A display-surface contact: vertex v of muscle a against the point of triangle `triangle` of
@@ -880,33 +889,46 @@ void refresh_pair_candidates(const FibresFirstModel& model, const Points3& x, Pa
     for (Eigen::Index j = 0; j < n; ++j)
       if ((x.row(c.ids[j]) - c.built_at.row(j)).squaredNorm() > limit2) movers.push_back(j);
     if (movers.empty()) return;
-    if (static_cast<Eigen::Index>(movers.size()) * 8 < n) {  // a few movers: partial rebuild
+    std::size_t rereferenced = c.rereferenced.size();
+    for (Eigen::Index j : movers) rereferenced += c.is_rereferenced[j] ? 0 : 1;
+    if (static_cast<Eigen::Index>(rereferenced) * 8 < n) {  // a few movers: partial rebuild
       std::vector<char> is_mover(model.num_particles(), 0);
       for (Eigen::Index j : movers) {
         c.built_at.row(j) = x.row(c.ids[j]);
         is_mover[c.ids[j]] = 1;
+        if (!c.is_rereferenced[j]) c.rereferenced.push_back(j);
+        c.is_rereferenced[j] = 1;
       }
       c.list.erase(std::remove_if(c.list.begin(), c.list.end(),
                                   [&](const MusclePair& pr) { return is_mover[pr.p] || is_mover[pr.q]; }),
                    c.list.end());
-      const PointCloud cloud{c.built_at};
-      PointTree tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(12));
-      tree.buildIndex();
+      Points3 moved_at(static_cast<Eigen::Index>(c.rereferenced.size()), 3);
+      for (std::size_t i = 0; i < c.rereferenced.size(); ++i)
+        moved_at.row(static_cast<Eigen::Index>(i)) = c.built_at.row(c.rereferenced[i]);
+      const PointCloud moved_cloud{moved_at};
+      PointTree moved_tree(3, moved_cloud, nanoflann::KDTreeSingleIndexAdaptorParams(12));
+      moved_tree.buildIndex();
       std::vector<std::pair<std::size_t, double>> hits;
       nanoflann::SearchParams params;
       params.sorted = false;
+      auto add = [&](int a, int b) {
+        if (model.muscle_of[b] == model.muscle_of[a]) return;
+        const int p = std::min(a, b), q = std::max(a, b);
+        const double allowed = std::min(margin, (model.rest.row(p) - model.rest.row(q)).norm());
+        if (allowed > 1e-12) c.list.push_back({p, q, allowed});
+      };
       for (Eigen::Index j : movers) {
         const int a = c.ids[j];
         const Vec3 xa = c.built_at.row(j);
         hits.clear();
-        tree.radiusSearch(xa.data(), radius * radius, hits, params);
-        for (const auto& [k, d2] : hits) {
-          const int b = c.ids[k];
-          if (model.muscle_of[b] == model.muscle_of[a]) continue;
-          if (is_mover[b] && b < a) continue;  // both movers: added once, from the larger index
-          const int p = std::min(a, b), q = std::max(a, b);
-          const double allowed = std::min(margin, (model.rest.row(p) - model.rest.row(q)).norm());
-          if (allowed > 1e-12) c.list.push_back({p, q, allowed});
+        c.full_tree->radiusSearch(xa.data(), radius * radius, hits, params);
+        for (const auto& [k, d2] : hits)
+          if (!c.is_rereferenced[static_cast<Eigen::Index>(k)]) add(a, c.ids[k]);
+        hits.clear();
+        moved_tree.radiusSearch(xa.data(), radius * radius, hits, params);
+        for (const auto& [i, d2] : hits) {
+          const int b = c.ids[c.rereferenced[i]];
+          if (!(is_mover[b] && b < a)) add(a, b);  // both movers: added once, from the larger index
         }
       }
       std::sort(c.list.begin(), c.list.end(),
@@ -917,9 +939,13 @@ void refresh_pair_candidates(const FibresFirstModel& model, const Points3& x, Pa
   }
   c.built_at.resize(n, 3);
   for (Eigen::Index j = 0; j < n; ++j) c.built_at.row(j) = x.row(c.ids[j]);
-  const PointCloud cloud{c.built_at};
-  PointTree tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(12));
+  c.full_at = c.built_at;
+  c.full_cloud = std::make_unique<PointCloud>(PointCloud{c.full_at});
+  c.full_tree = std::make_unique<PointTree>(3, *c.full_cloud, nanoflann::KDTreeSingleIndexAdaptorParams(12));
+  PointTree& tree = *c.full_tree;
   tree.buildIndex();
+  c.rereferenced.clear();
+  c.is_rereferenced.assign(static_cast<std::size_t>(n), 0);
   c.list.clear();
   std::vector<std::pair<std::size_t, double>> hits;
   nanoflann::SearchParams params;
