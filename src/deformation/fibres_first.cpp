@@ -10,6 +10,7 @@
 #include "fascicle/sparse/cholmod_view.hpp"
 #include "fascicle/sparse/simplicial_solve.hpp"
 
+#include <Eigen/Geometry>
 #include <Eigen/SVD>
 #include <cholmod.h>
 
@@ -434,12 +435,31 @@ struct MusclePair {
 // some contact particle has moved more than skin/2 since then, so every pair closer than the
 // margin now is in it; between rebuilds a detection is one pass over the list instead of a k-d
 // tree build and one radius query per particle.
+//
+// Partial rebuilds (since session 13): each contact particle has its own reference position
+// (built_at), and the list holds every pair of different muscles whose reference positions are
+// within margin + skin. When only a few particles (the movers) have moved more than skin/2 from
+// theirs, only the movers get new references and new pairs: their old pairs are dropped, and
+// each mover's new partners are found in the k-d tree of the last full build (the particles
+// whose reference has not changed since) and in a small k-d tree of the particles whose
+// reference has. Pairs between other particles keep their references and stay right, so the
+// list still holds every pair closer than the margin now, and a detection (which reads the list
+// in (p, q) order) finds the same pairs as after a full rebuild. A full rebuild once more than
+// an eighth of the particles have new references.
 struct PairCandidates {
   std::vector<int> ids;          // contact particles of all muscles (model indices)
-  Points3 built_at;              // their positions at the last build (#ids x 3)
+  Points3 built_at;              // their reference positions (#ids x 3)
   std::vector<MusclePair> list;  // p < q, allowed = min(margin, rest distance), sorted by (p, q)
   bool valid = false;
-  int builds = 0;                // since the solver was made (diagnostics)
+  int builds = 0;                // full rebuilds since the solver was made (diagnostics)
+  int partial_builds = 0;        // partial rebuilds (diagnostics)
+  // the last full build: its reference positions, their k-d tree, and the particles (positions
+  // in ids) whose reference has changed since
+  Points3 full_at;
+  std::unique_ptr<PointCloud> full_cloud;
+  std::unique_ptr<PointTree> full_tree;
+  std::vector<Eigen::Index> rereferenced;
+  std::vector<char> is_rereferenced;  // per position in ids
 };
 
 // A display-surface contact: vertex v of muscle a against the point of triangle `triangle` of
@@ -485,6 +505,22 @@ struct SurfaceSeparation {
   std::vector<double> travel;
   std::vector<VecX> tested_gap, tested_travel;
   std::vector<Points3> tested_at;
+  // The same bound in b's body frame (the gap does not change when one rigid motion moves both
+  // the point and the surface): to_body[b] is the inverse of the rigid motion best fitting b's
+  // rest surface to its surface at the last fit (Umeyama 1991), and body_travel[b] the sum over
+  // the updates of the largest vertex displacement in that frame (at a refit: the new frame's
+  // vertices against the old frame's previous ones), so a muscle that moves rigidly adds
+  // nothing. b is refitted only once its world travel since the last fit exceeds
+  // body_refit_after_m (in between, the body displacements equal the world ones). Per ordered
+  // pair, per vertex of a: its position in b's body frame and body_travel[b] at its last test.
+  // A vertex is skipped when either bound keeps it beyond the margin (gait2392: the frame's bone
+  // motion, ~20 mm, made the world bound retest nearly every vertex at each frame's start).
+  static constexpr double body_refit_after_m = 1e-3;
+  std::vector<Points3> rest_surface;
+  std::vector<Transform> to_body;
+  std::vector<double> body_travel, fitted_travel;
+  std::vector<VecX> tested_body_travel;
+  std::vector<Points3> tested_body_at;
   std::vector<SurfaceContact> contacts;
   std::unordered_map<long long, int> keys;  // (a, b, v) -> index into contacts
   std::vector<std::vector<PushKernel>> kernels;  // per muscle, per display vertex
@@ -513,11 +549,30 @@ struct BoneContacts {
   }
 };
 
+// Whole muscles skipped by the bone detection (since session 13). For muscle m and bone b, after
+// a pass over m's free particles, slack = min over them of (clearance - distance moved since the
+// last exact test): each particle is culled while it moves less than its clearance, so all of m
+// are culled while every particle has moved less than slack since that pass. In b's frame a
+// particle moves by at most its world displacement since then (travel: the sum over the
+// detections of m's largest displacement) plus what the change of b's motion does to it:
+// |X_now^-1 x - X_then^-1 x| <= |E y_c - y_c| + |R_E - I| r for E = X_now^-1 X_then, y_c the
+// pass's centre of m's particles in b's frame and r their radius around it. When that bound is
+// below slack the pass would cull every particle: it is skipped, with the same results.
+struct BoneCull {
+  std::vector<double> travel;  // per muscle
+  Points3 last_x;              // positions at the last detection (empty: none yet)
+  // per muscle * bones + bone, at the last pass
+  std::vector<double> slack, travel_then, radius;
+  std::vector<Vec3> centre;  // world
+  std::vector<Transform> motion;
+};
+
 struct FibresFirstSolver::Workspace {
   std::vector<std::unique_ptr<MuscleSystem>> systems;  // per muscle
   BoneContacts bone_contacts;
   std::vector<Points3> checked_at;  // per bone: last exactly tested position (bone rest frame)
   std::vector<VecX> clearance;      // per bone: its distance to the bone then (inside: -depth)
+  BoneCull bone_cull;
   std::vector<MusclePair> pairs;
   std::unordered_set<long long> pair_keys;
   PairCandidates candidates;
@@ -606,6 +661,15 @@ std::unique_ptr<FibresFirstSolver::Workspace> make_workspace(const FibresFirstMo
   }
   ws.checked_at.assign(model_.num_bones(), model_.rest);
   ws.clearance = calc_start_clearance(model_);
+  {
+    const std::size_t nmb = model_.muscles.size() * static_cast<std::size_t>(model_.num_bones());
+    ws.bone_cull.travel.assign(model_.muscles.size(), 0.0);
+    ws.bone_cull.slack.assign(nmb, -std::numeric_limits<double>::infinity());
+    ws.bone_cull.travel_then.assign(nmb, 0.0);
+    ws.bone_cull.radius.assign(nmb, 0.0);
+    ws.bone_cull.centre.assign(nmb, Vec3::Zero());
+    ws.bone_cull.motion.assign(nmb, Transform::Identity());
+  }
   ws.bone_contacts.clear(N);
   init_surface_separation(model_, ws.systems, ws.surfaces);
   ws.pair_target = Points3::Zero(N, 3);
@@ -669,73 +733,122 @@ Vec3 calc_bone_contact_normal(const FibresFirstModel& model, const Vec3& local, 
 // added and reports the deepest penetration beyond rest over all particles.
 // `checked_at` / `clearance` (per bone, per particle) cache the last exact test (clearance: the
 // distance then, minus the depth when inside): a particle that
-// was outside at distance c (bone frame) and has moved less than c since cannot be inside.
+// was outside at distance c (bone frame) and has moved less than c since cannot be inside. A
+// muscle whose particles are all culled that way for a bone is skipped as a whole (BoneCull).
 int detect_bone_contacts(const FrameContext& c, const Points3& x, BoneContacts& contacts,
                          std::vector<Points3>& checked_at, std::vector<VecX>& clearance,
-                         bool add, std::vector<double>* max_depth_per_muscle,
+                         BoneCull& cull, bool add, std::vector<double>* max_depth_per_muscle,
                          std::vector<char>* added_muscle = nullptr,
                          std::vector<char>* inside_muscle = nullptr) {
   const FibresFirstModel& model = c.model;
   const double margin = model.options.bone_margin_m;
+  const int nm = static_cast<int>(model.muscles.size()), nb = model.num_bones();
+  // each muscle's largest displacement since the last detection, and its free particles' centre
+  // (middle of their box) and radius about it
+  std::vector<Vec3> centre(nm, Vec3::Zero());
+  std::vector<double> radius_now(nm, 0.0);
+  for (int mi = 0; mi < nm; ++mi) {
+    const FibreBundle& m = model.muscles[mi];
+    double largest2 = 0.0;
+    Eigen::AlignedBox3d box;
+    for (int p = m.first_particle; p < m.first_particle + m.num_particles; ++p) {
+      if (model.role[p] != ParticleRole::free) continue;
+      if (cull.last_x.rows() == x.rows()) largest2 = std::max(largest2, (x.row(p) - cull.last_x.row(p)).squaredNorm());
+      box.extend(Vec3(x.row(p).transpose()));
+    }
+    cull.travel[mi] += std::sqrt(largest2);
+    if (box.isEmpty()) continue;
+    centre[mi] = box.center();
+    for (int p = m.first_particle; p < m.first_particle + m.num_particles; ++p)
+      if (model.role[p] == ParticleRole::free)
+        radius_now[mi] = std::max(radius_now[mi], (Vec3(x.row(p).transpose()) - centre[mi]).norm());
+  }
+  cull.last_x = x;
   int added = 0;
   for (int b = 0; b < model.num_bones(); ++b) {
     const MeshQuery& bone = *model.bones[b];
     const Transform X_rest_now = c.motions[b].inverse();
-    for (int p = 0; p < model.num_particles(); ++p) {
-      // fixed particles follow their bone and cannot be moved: neither contacts nor measured.
-      // A particle inside the bone at rest (depth d0) may stay as deep: only depth beyond d0
-      // counts, and its contact plane lies at depth d0 - margin (its clearance is 0: never culled)
-      if (model.role[p] != ParticleRole::free) continue;
-      const double rest_depth = model.rest_bone_depth[b][p];
-      const Vec3 local = X_rest_now * Vec3(x.row(p).transpose());
-      const double moved = (local - checked_at[b].row(p).transpose()).norm();
-      if (moved < clearance[b][p]) continue;  // cannot have reached the bone
-      // the surface lies within |last distance| + moved of the particle: a bounded query, and
-      // nothing within it means outside by at least that much
-      const double radius = std::abs(clearance[b][p]) + moved + 1e-9;
-      const ClosestPoint cp = bone.calc_closest_point(local, radius);
-      checked_at[b].row(p) = local.transpose();
-      if (cp.triangle < 0) {
-        clearance[b][p] = radius;
-        continue;
+    for (int mi = 0; mi < nm; ++mi) {
+      const std::size_t mb = static_cast<std::size_t>(mi) * nb + b;
+      if (cull.slack[mb] > 0.0) {
+        double bound = cull.travel[mi] - cull.travel_then[mb];
+        if (c.motions[b].matrix() != cull.motion[mb].matrix()) {  // b moved since the pass
+          const Transform E = X_rest_now * cull.motion[mb];
+          const Vec3 yc = cull.motion[mb].inverse() * cull.centre[mb];
+          const double turn = std::sqrt(std::max(0.0, 3.0 - E.linear().trace()));  // |R - I|
+          bound += (E * yc - yc).norm() + (turn + 1e-12) * cull.radius[mb];
+        }
+        if (bound < cull.slack[mb] * (1.0 - 1e-9) - 1e-12) continue;  // every particle culled
       }
-      clearance[b][p] = cp.distance;
-      Vec3 face_normal;
-      if (!detail::calc_is_behind_bone(bone, local, cp, &face_normal)) continue;
-      clearance[b][p] = -cp.distance;  // inside: minus the depth (never culls)
-      if (cp.distance <= rest_depth) continue;  // not deeper than at rest
-      // flagged whether or not a contact slot is free (a third bone finds both slots taken)
-      if (inside_muscle) (*inside_muscle)[model.muscle_of[p]] = 1;
-      if (max_depth_per_muscle) {
-        double& d = (*max_depth_per_muscle)[model.muscle_of[p]];
-        d = std::max(d, cp.distance - rest_depth);
-      }
-      if (!add) continue;
-      // a free slot, and not a second contact with the same bone
-      int slot = -1;
-      bool held_by_b = false;
-      for (int s = 0; s < BoneContacts::slots; ++s) {
-        held_by_b = held_by_b || contacts.bone[s][p] == b;
-        if (slot < 0 && contacts.bone[s][p] < 0) slot = s;
-      }
-      const Vec3 n = calc_bone_contact_normal(model, local, cp, face_normal);
-      if (held_by_b) {
-        // inside a bone it is already held against: the contact's plane (set where the particle
-        // entered) no longer fits where it is now; move the plane to the current closest point
-        for (int s = 0; s < BoneContacts::slots; ++s)
-          if (contacts.bone[s][p] == b) {
-            contacts.target_rest[s][p] = cp.point + (margin - rest_depth) * n;
-            contacts.normal_rest[s][p] = n;
-          }
+      double slack = std::numeric_limits<double>::infinity();
+      const FibreBundle& m = model.muscles[mi];
+      for (int p = m.first_particle; p < m.first_particle + m.num_particles; ++p) {
+        // fixed particles follow their bone and cannot be moved: neither contacts nor measured.
+        // A particle inside the bone at rest (depth d0) may stay as deep: only depth beyond d0
+        // counts, and its contact plane lies at depth d0 - margin (its clearance is 0: never culled)
+        if (model.role[p] != ParticleRole::free) continue;
+        const double rest_depth = model.rest_bone_depth[b][p];
+        const Vec3 local = X_rest_now * Vec3(x.row(p).transpose());
+        const double moved = (local - checked_at[b].row(p).transpose()).norm();
+        if (moved < clearance[b][p]) {  // cannot have reached the bone
+          slack = std::min(slack, clearance[b][p] - moved);
+          continue;
+        }
+        // the surface lies within |last distance| + moved of the particle: a bounded query, and
+        // nothing within it means outside by at least that much
+        const double radius = std::abs(clearance[b][p]) + moved + 1e-9;
+        const ClosestPoint cp = bone.calc_closest_point(local, radius);
+        checked_at[b].row(p) = local.transpose();
+        if (cp.triangle < 0) {
+          clearance[b][p] = radius;
+          slack = std::min(slack, radius);
+          continue;
+        }
+        clearance[b][p] = cp.distance;
+        slack = std::min(slack, cp.distance);
+        Vec3 face_normal;
+        if (!detail::calc_is_behind_bone(bone, local, cp, &face_normal)) continue;
+        clearance[b][p] = -cp.distance;  // inside: minus the depth (never culls)
+        slack = 0.0;
+        if (cp.distance <= rest_depth) continue;  // not deeper than at rest
+        // flagged whether or not a contact slot is free (a third bone finds both slots taken)
+        if (inside_muscle) (*inside_muscle)[model.muscle_of[p]] = 1;
+        if (max_depth_per_muscle) {
+          double& d = (*max_depth_per_muscle)[model.muscle_of[p]];
+          d = std::max(d, cp.distance - rest_depth);
+        }
+        if (!add) continue;
+        // a free slot, and not a second contact with the same bone
+        int slot = -1;
+        bool held_by_b = false;
+        for (int s = 0; s < BoneContacts::slots; ++s) {
+          held_by_b = held_by_b || contacts.bone[s][p] == b;
+          if (slot < 0 && contacts.bone[s][p] < 0) slot = s;
+        }
+        const Vec3 n = calc_bone_contact_normal(model, local, cp, face_normal);
+        if (held_by_b) {
+          // inside a bone it is already held against: the contact's plane (set where the particle
+          // entered) no longer fits where it is now; move the plane to the current closest point
+          for (int s = 0; s < BoneContacts::slots; ++s)
+            if (contacts.bone[s][p] == b) {
+              contacts.target_rest[s][p] = cp.point + (margin - rest_depth) * n;
+              contacts.normal_rest[s][p] = n;
+            }
+          if (added_muscle) (*added_muscle)[model.muscle_of[p]] = 1;
+          continue;
+        }
+        if (slot < 0) continue;
+        contacts.bone[slot][p] = b;
+        contacts.target_rest[slot][p] = cp.point + (margin - rest_depth) * n;
+        contacts.normal_rest[slot][p] = n;
         if (added_muscle) (*added_muscle)[model.muscle_of[p]] = 1;
-        continue;
+        ++added;
       }
-      if (slot < 0) continue;
-      contacts.bone[slot][p] = b;
-      contacts.target_rest[slot][p] = cp.point + (margin - rest_depth) * n;
-      contacts.normal_rest[slot][p] = n;
-      if (added_muscle) (*added_muscle)[model.muscle_of[p]] = 1;
-      ++added;
+      cull.slack[mb] = slack;
+      cull.travel_then[mb] = cull.travel[mi];
+      cull.centre[mb] = centre[mi];
+      cull.radius[mb] = radius_now[mi];
+      cull.motion[mb] = c.motions[b];
     }
   }
   return added;
@@ -794,23 +907,74 @@ void refresh_pair_candidates(const FibresFirstModel& model, const Points3& x, Pa
     for (const FibreBundle& m : model.muscles)
       c.ids.insert(c.ids.end(), m.contact_particles.begin(), m.contact_particles.end());
   const Eigen::Index n = static_cast<Eigen::Index>(c.ids.size());
+  const double radius = margin + skin;
   if (c.valid) {
     const double limit2 = 0.25 * skin * skin;
-    bool moved = false;
-    for (Eigen::Index j = 0; j < n && !moved; ++j)
-      moved = (x.row(c.ids[j]) - c.built_at.row(j)).squaredNorm() > limit2;
-    if (!moved) return;
+    std::vector<Eigen::Index> movers;
+    for (Eigen::Index j = 0; j < n; ++j)
+      if ((x.row(c.ids[j]) - c.built_at.row(j)).squaredNorm() > limit2) movers.push_back(j);
+    if (movers.empty()) return;
+    std::size_t rereferenced = c.rereferenced.size();
+    for (Eigen::Index j : movers) rereferenced += c.is_rereferenced[j] ? 0 : 1;
+    if (static_cast<Eigen::Index>(rereferenced) * 8 < n) {  // a few movers: partial rebuild
+      std::vector<char> is_mover(model.num_particles(), 0);
+      for (Eigen::Index j : movers) {
+        c.built_at.row(j) = x.row(c.ids[j]);
+        is_mover[c.ids[j]] = 1;
+        if (!c.is_rereferenced[j]) c.rereferenced.push_back(j);
+        c.is_rereferenced[j] = 1;
+      }
+      c.list.erase(std::remove_if(c.list.begin(), c.list.end(),
+                                  [&](const MusclePair& pr) { return is_mover[pr.p] || is_mover[pr.q]; }),
+                   c.list.end());
+      Points3 moved_at(static_cast<Eigen::Index>(c.rereferenced.size()), 3);
+      for (std::size_t i = 0; i < c.rereferenced.size(); ++i)
+        moved_at.row(static_cast<Eigen::Index>(i)) = c.built_at.row(c.rereferenced[i]);
+      const PointCloud moved_cloud{moved_at};
+      PointTree moved_tree(3, moved_cloud, nanoflann::KDTreeSingleIndexAdaptorParams(12));
+      moved_tree.buildIndex();
+      std::vector<std::pair<std::size_t, double>> hits;
+      nanoflann::SearchParams params;
+      params.sorted = false;
+      auto add = [&](int a, int b) {
+        if (model.muscle_of[b] == model.muscle_of[a]) return;
+        const int p = std::min(a, b), q = std::max(a, b);
+        const double allowed = std::min(margin, (model.rest.row(p) - model.rest.row(q)).norm());
+        if (allowed > 1e-12) c.list.push_back({p, q, allowed});
+      };
+      for (Eigen::Index j : movers) {
+        const int a = c.ids[j];
+        const Vec3 xa = c.built_at.row(j);
+        hits.clear();
+        c.full_tree->radiusSearch(xa.data(), radius * radius, hits, params);
+        for (const auto& [k, d2] : hits)
+          if (!c.is_rereferenced[static_cast<Eigen::Index>(k)]) add(a, c.ids[k]);
+        hits.clear();
+        moved_tree.radiusSearch(xa.data(), radius * radius, hits, params);
+        for (const auto& [i, d2] : hits) {
+          const int b = c.ids[c.rereferenced[i]];
+          if (!(is_mover[b] && b < a)) add(a, b);  // both movers: added once, from the larger index
+        }
+      }
+      std::sort(c.list.begin(), c.list.end(),
+                [](const MusclePair& a, const MusclePair& b) { return a.p != b.p ? a.p < b.p : a.q < b.q; });
+      ++c.partial_builds;
+      return;
+    }
   }
   c.built_at.resize(n, 3);
   for (Eigen::Index j = 0; j < n; ++j) c.built_at.row(j) = x.row(c.ids[j]);
-  const PointCloud cloud{c.built_at};
-  PointTree tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(12));
+  c.full_at = c.built_at;
+  c.full_cloud = std::make_unique<PointCloud>(PointCloud{c.full_at});
+  c.full_tree = std::make_unique<PointTree>(3, *c.full_cloud, nanoflann::KDTreeSingleIndexAdaptorParams(12));
+  PointTree& tree = *c.full_tree;
   tree.buildIndex();
+  c.rereferenced.clear();
+  c.is_rereferenced.assign(static_cast<std::size_t>(n), 0);
   c.list.clear();
   std::vector<std::pair<std::size_t, double>> hits;
   nanoflann::SearchParams params;
   params.sorted = false;
-  const double radius = margin + skin;
   for (Eigen::Index j = 0; j < n; ++j) {
     const int p = c.ids[j];
     const Vec3 xp = c.built_at.row(j);
@@ -998,6 +1162,12 @@ void init_surface_separation(const FibresFirstModel& model,
   ss.tested_gap.assign(static_cast<std::size_t>(nm) * nm, VecX());
   ss.tested_travel.assign(static_cast<std::size_t>(nm) * nm, VecX());
   ss.tested_at.assign(static_cast<std::size_t>(nm) * nm, Points3());
+  ss.rest_surface = ss.surface;
+  ss.to_body.assign(nm, Transform::Identity());
+  ss.body_travel.assign(nm, 0.0);
+  ss.fitted_travel.assign(nm, 0.0);
+  ss.tested_body_travel.assign(static_cast<std::size_t>(nm) * nm, VecX());
+  ss.tested_body_at.assign(static_cast<std::size_t>(nm) * nm, Points3());
   ss.rest_gap.assign(static_cast<std::size_t>(nm) * nm, VecX());
   ss.resolved.assign(static_cast<std::size_t>(nm) * nm, 1);
   std::vector<Eigen::AlignedBox3d> box(nm);
@@ -1037,7 +1207,21 @@ void update_surfaces(const FibresFirstModel& model,
     const FibreBundle& m = model.muscles[mi];
     Points3 now = systems[mi]->surface_map * x.middleRows(m.first_particle, m.num_particles);
     if (now == ss.surface[mi]) return;  // unchanged: the query already holds these vertices
-    ss.travel[mi] += std::sqrt((now - ss.surface[mi]).rowwise().squaredNorm().maxCoeff());
+    const double moved = std::sqrt((now - ss.surface[mi]).rowwise().squaredNorm().maxCoeff());
+    ss.travel[mi] += moved;
+    if (!(ss.travel[mi] - ss.fitted_travel[mi] > SurfaceSeparation::body_refit_after_m)) {
+      ss.body_travel[mi] += moved;  // the same body frame: rigid, so the world displacements
+    } else {
+      Transform to_body;
+      to_body.matrix() = Eigen::umeyama(now.transpose(), ss.rest_surface[mi].transpose(), false);
+      double largest2 = 0.0;
+      for (Eigen::Index v = 0; v < now.rows(); ++v)
+        largest2 = std::max(largest2, (to_body * Vec3(now.row(v).transpose()) -
+                                       ss.to_body[mi] * Vec3(ss.surface[mi].row(v).transpose())).squaredNorm());
+      ss.body_travel[mi] += std::sqrt(largest2);
+      ss.to_body[mi] = to_body;
+      ss.fitted_travel[mi] = ss.travel[mi];
+    }
     ss.surface[mi] = std::move(now);
     ss.query[mi]->update_vertices(ss.surface[mi]);
   });
@@ -1085,6 +1269,8 @@ int detect_surface_contacts(const FibresFirstModel& model,
         ss.tested_gap[ab] = VecX::Constant(S.rows(), -std::numeric_limits<double>::infinity());
         ss.tested_travel[ab] = VecX::Zero(S.rows());
         ss.tested_at[ab] = S;
+        ss.tested_body_travel[ab] = VecX::Zero(S.rows());
+        ss.tested_body_at[ab] = S;
       }
     }
     for (int v = 0; v < static_cast<int>(S.rows()); ++v) {
@@ -1094,12 +1280,19 @@ int detect_surface_contacts(const FibresFirstModel& model,
         const std::size_t ab = static_cast<std::size_t>(a) * nm + b;
         const double bound = ss.tested_gap[ab][v] - (p - Vec3(ss.tested_at[ab].row(v).transpose())).norm() -
                              (ss.travel[b] - ss.tested_travel[ab][v]);
-        if (bound > o.surface_margin_m * (1.0 + 1e-9) + 1e-12) continue;  // cannot be within the margin
+        const double beyond = o.surface_margin_m * (1.0 + 1e-9) + 1e-12;
+        if (bound > beyond) continue;  // cannot be within the margin
+        const Vec3 z = ss.to_body[b] * p;
+        const double body_bound = ss.tested_gap[ab][v] - (z - Vec3(ss.tested_body_at[ab].row(v).transpose())).norm() -
+                                  (ss.body_travel[b] - ss.tested_body_travel[ab][v]);
+        if (body_bound > beyond) continue;
         ClosestPoint cp;
         const double gap = calc_signed_gap(*ss.query[b], p, cp);
         ss.tested_gap[ab][v] = gap;
         ss.tested_travel[ab][v] = ss.travel[b];
         ss.tested_at[ab].row(v) = p.transpose();
+        ss.tested_body_travel[ab][v] = ss.body_travel[b];
+        ss.tested_body_at[ab].row(v) = z.transpose();
         if (gap < o.surface_margin_m) found[a].push_back({v, b, gap, cp});
       }
     }
@@ -1254,11 +1447,14 @@ bool calc_particle_contact_step(const FibresFirstModel& model, const SurfaceCont
 
 // Surface-particle contact targets of this iteration (Jacobi, like the pairs): each contact's
 // projection (calc_particle_contact_step) from the snapshot, accumulated into the per-particle
-// mean targets.
+// mean targets. `active` (optional, per muscle): only the contacts of an active muscle are needed
+// (the others' rows are read by no solve this iteration); a particle's sum takes the same terms in
+// the same order either way.
 void add_surface_particle_targets(const FibresFirstModel& model, FibresFirstSolver::Workspace& ws,
-                                  const Points3& snapshot) {
+                                  const Points3& snapshot, const std::vector<char>* active = nullptr) {
   if (!ws.surfaces.enabled) return;
   for (const SurfaceContact& c : ws.surfaces.contacts) {
+    if (active && !(*active)[c.a] && !(*active)[c.b]) continue;
     int pv = -1, pf[3];
     Vec3 n;
     double lambda = 0.0;
@@ -1377,9 +1573,10 @@ void update_factors(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, i
 
 // Muscle-muscle targets of this iteration (Jacobi): each pair pushed apart symmetrically to its
 // allowed distance (all of the way by the free one when the other is fixed); per particle, the
-// mean over its pairs.
+// mean over its pairs. `active` (optional, per muscle): only the pairs of an active muscle are set
+// (see add_surface_particle_targets).
 void set_pair_targets(const FibresFirstModel& model, FibresFirstSolver::Workspace& ws,
-                      const Points3& snapshot) {
+                      const Points3& snapshot, const std::vector<char>* active = nullptr) {
   // only the rows written in the last iteration are non-zero
   for (int p : ws.target_rows) {
     ws.pair_target.row(p).setZero();
@@ -1387,6 +1584,7 @@ void set_pair_targets(const FibresFirstModel& model, FibresFirstSolver::Workspac
   }
   ws.target_rows.clear();
   for (const MusclePair& pr : ws.pairs) {
+    if (active && !(*active)[model.muscle_of[pr.p]] && !(*active)[model.muscle_of[pr.q]]) continue;
     const Vec3 d = snapshot.row(pr.p) - snapshot.row(pr.q);
     const double dist = d.norm();
     Vec3 tp = snapshot.row(pr.p), tq = snapshot.row(pr.q);
@@ -1713,7 +1911,7 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
     best.x = x;
     best.contacts = ws.bone_contacts;
   };
-  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr);
+  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, ws.bone_cull, true, nullptr);
   if (ss.enabled) revalidate_far_bone_contacts(ctx, x, ws.bone_contacts);
   project_onto_bones();
   push_pairs_apart();
@@ -1749,7 +1947,7 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
     restore_volumes();
     // the pushes may have moved particles into bones: detect those too (a second contact slot
     // when the particle already holds one)
-    detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr);
+    detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, ws.bone_cull, true, nullptr);
     revalidate_far_bone_contacts(ctx, x, ws.bone_contacts);
   }
   project_onto_bones();
@@ -1781,7 +1979,7 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
     ++info.final_passes;
     restore_volumes();
     push_surfaces_apart();
-    detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr);
+    detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, ws.bone_cull, true, nullptr);
     revalidate_far_bone_contacts(ctx, x, ws.bone_contacts);
     project_onto_bones();
     error = worst_volume_error();
@@ -1808,7 +2006,7 @@ void project_final(const FrameContext& ctx, FibresFirstSolver::Workspace& ws, Po
     bool projected = false;
     for (int k = 0; k < 4; ++k) {
       std::vector<char> inside(nm, 0);
-      detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr, nullptr,
+      detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, ws.bone_cull, true, nullptr, nullptr,
                            &inside);
       if (std::find(inside.begin(), inside.end(), 1) == inside.end()) break;
       revalidate_far_bone_contacts(ctx, x, ws.bone_contacts);
@@ -1957,7 +2155,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
   // surface contacts kept from the previous frame (see the end of calc_frame) stay active; with
   // separation, kept bone contacts far from their particle are re-evaluated first
   if (ws.surfaces.enabled) revalidate_far_bone_contacts(ctx, x, ws.bone_contacts);
-  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, true, nullptr);
+  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, ws.bone_cull, true, nullptr);
   detect_muscle_pairs(model, x, ws.candidates, ws.pairs, ws.pair_keys, true, nullptr);
   detect_surface_contacts(model, ws.systems, x, ws.surfaces, true, nullptr, nullptr);
   const int nm = static_cast<int>(model.muscles.size());
@@ -2009,8 +2207,8 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
         for (int mi = 0; mi < nm; ++mi)
           if (ran[mi]) rows_of(snapshot, mi) = rows_of(x, mi);
       }
-      set_pair_targets(model, ws, snapshot);
-      add_surface_particle_targets(model, ws, snapshot);
+      set_pair_targets(model, ws, snapshot, &active);
+      add_surface_particle_targets(model, ws, snapshot, &active);
       // every other iteration in reverse muscle order, so the muscle relaxed last in one
       // iteration is relaxed first in the next, while its factor, springs and rows are still in
       // the core's cache (the muscles of an iteration are independent: any order gives the same
@@ -2099,7 +2297,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
     if (round + 1 == o.max_contact_rounds) break;
     for (int mi = 0; mi < nm; ++mi) touched[mi] = steps[mi] >= o.step_tolerance;
     const std::size_t pairs_before = ws.pairs.size();
-    const int added_bone = detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance,
+    const int added_bone = detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, ws.bone_cull,
                                                 true, nullptr, &touched);
     const int added_pairs = detect_muscle_pairs(model, x, ws.candidates, ws.pairs, ws.pair_keys, true, nullptr);
     const int added_surf = detect_surface_contacts(model, ws.systems, x, ws.surfaces, true, nullptr,
@@ -2117,7 +2315,7 @@ void FibresFirstSolver::calc_frame(const FibresFirstInput& input) {
   // results and checks
   std::vector<FibreBundleFrame> frames(nm);
   std::vector<double> depth(nm, 0.0), overlap(nm, 0.0);
-  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, false, &depth);
+  detect_bone_contacts(ctx, x, ws.bone_contacts, ws.checked_at, ws.clearance, ws.bone_cull, false, &depth);
   std::vector<MusclePair> no_pairs;
   std::unordered_set<long long> no_keys;
   detect_muscle_pairs(model, x, ws.candidates, no_pairs, no_keys, false, &overlap);
