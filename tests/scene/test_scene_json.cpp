@@ -141,6 +141,34 @@ TEST(SceneJson, MissingMeshFileNamesPathAndFile) {
   EXPECT_NE(std::string(e.what()).find("shin.stl"), std::string::npos);
 }
 
+// Mesh files are read ahead in parallel (prefetch); a file that cannot be read is still reported
+// at the first place the scene names it, in parse order, and a file named twice is read once.
+TEST(SceneJson, CorruptMeshFileIsReportedWhereTheSceneFirstNamesIt) {
+  const auto error_for = [](json s, const std::string& name) {
+    const fs::path dir = write_scene_files(name, s);
+    std::ofstream(dir / "broken.stl", std::ios::binary) << "solid broken\n  facet normal 0 0 1\n    outer loop\n";
+    try {
+      load_scene(dir / "scene.json", make_default_registry());
+    } catch (const Error& e) {
+      return e;
+    }
+    ADD_FAILURE() << "no error for " << name;
+    return Error(ErrorKind::internal, "none");
+  };
+  json s = make_scene_json();
+  s["bodies"][1]["mesh"] = "broken.stl";
+  s["muscles"][0]["mesh"] = "broken.stl";
+  const Error twice = error_for(s, "json_corrupt_mesh_twice");
+  EXPECT_EQ(twice.kind(), ErrorKind::bad_input);
+  EXPECT_EQ(twice.context().json_path, "/bodies/1/mesh");
+  EXPECT_NE(std::string(twice.what()).find("broken.stl"), std::string::npos);
+  s = make_scene_json();
+  s["muscles"][0]["mesh"] = "broken.stl";
+  const Error muscle = error_for(s, "json_corrupt_mesh_muscle");
+  EXPECT_EQ(muscle.kind(), ErrorKind::bad_input);
+  EXPECT_EQ(muscle.context().json_path, "/muscles/0/mesh");
+}
+
 TEST(SceneJson, MalformedJsonIsBadInput) {
   try {
     parse_scene("{\"fascicle_scene\": 1, ", "broken.json", make_default_registry());
