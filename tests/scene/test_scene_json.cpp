@@ -61,9 +61,8 @@ fs::path write_scene_files(const std::string& name, const json& scene) {
   return dir;
 }
 
-// Loads the scene and returns the error it throws.
-Error load_error(const json& scene, const std::string& name) {
-  const fs::path dir = write_scene_files(name, scene);
+// Loads the scene written in `dir` (its files already there) and returns the error it throws.
+Error load_error_in(const fs::path& dir, const std::string& name) {
   try {
     load_scene(dir / "scene.json", make_default_registry());
   } catch (const Error& e) {
@@ -71,6 +70,11 @@ Error load_error(const json& scene, const std::string& name) {
   }
   ADD_FAILURE() << "no error for " << name;
   return Error(ErrorKind::internal, "none");
+}
+
+// Writes the scene's files, loads it and returns the error it throws.
+Error load_error(const json& scene, const std::string& name) {
+  return load_error_in(write_scene_files(name, scene), name);
 }
 
 }  // namespace
@@ -147,13 +151,7 @@ TEST(SceneJson, CorruptMeshFileIsReportedWhereTheSceneFirstNamesIt) {
   const auto error_for = [](json s, const std::string& name) {
     const fs::path dir = write_scene_files(name, s);
     std::ofstream(dir / "broken.stl", std::ios::binary) << "solid broken\n  facet normal 0 0 1\n    outer loop\n";
-    try {
-      load_scene(dir / "scene.json", make_default_registry());
-    } catch (const Error& e) {
-      return e;
-    }
-    ADD_FAILURE() << "no error for " << name;
-    return Error(ErrorKind::internal, "none");
+    return load_error_in(dir, name);
   };
   json s = make_scene_json();
   s["bodies"][1]["mesh"] = "broken.stl";
